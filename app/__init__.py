@@ -1,0 +1,1 @@
+"""The product: command line, SLAM worker thread and the viser web viewer."""

@@ -1,0 +1,56 @@
+"""Entry points: `splatam` (headless subcommands) and `splatam-viewer` (the web viewer).
+
+Each subcommand lives in `app/commands/<name>.py` with `add_arguments(parser)` and
+`main(args) -> int`; heavy imports happen inside `main` so `--help` stays fast. User errors
+(`InputError`) print one line and exit 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from splat_core.errors import InputError
+
+SUBCOMMANDS = {
+    "run": ("app.commands.run", "run SLAM headless on a capture and write a run folder"),
+    "info": ("app.commands.info", "describe a capture: format, frames, intrinsics, depth, poses"),
+    "convert": ("app.commands.convert", "convert any supported capture to the TUM RGB-D layout"),
+    "export": ("app.commands.export", "export a run's map as a 3DGS .ply or antimatter15 .splat"),
+    "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
+}
+
+
+def _run(module_name: str, args: argparse.Namespace) -> int:
+    try:
+        return int(importlib.import_module(module_name).main(args) or 0)
+    except InputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+def splatam_main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="splatam", description="SplaTAM: RGB-D SLAM with 3D Gaussians")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, (module_name, help_text) in SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=help_text, description=help_text)
+        importlib.import_module(module_name).add_arguments(p)
+        p.set_defaults(_module=module_name)
+    args = parser.parse_args(argv)
+    return _run(args._module, args)
+
+
+def viewer_main(argv=None) -> int:
+    module_name = "app.commands.viewer"
+    parser = argparse.ArgumentParser(prog="splatam-viewer",
+                                     description="Live SplaTAM SLAM in the browser (viser)")
+    importlib.import_module(module_name).add_arguments(parser)
+    return _run(module_name, parser.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(splatam_main())

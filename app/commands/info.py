@@ -1,0 +1,97 @@
+"""`splatam info --input PATH [--format NAME] [--json]`: what a capture holds and whether its
+poses, depth units and intrinsics look consistent (the reprojection check of formats.md)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--input", required=True, help="capture folder or Record3D .r3d file")
+    p.add_argument("--format", default=None, help="reader to use instead of detecting (tum, replica, scannet, "
+                                                  "scannetpp, nerfcapture, record3d, strayscanner)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    p.add_argument("--gap", type=int, default=10, help="frames between the two views of the pose check (10)")
+
+
+def gather(source, gap: int = 10) -> dict:
+    """Everything `info` reports, as a JSON-ready dict."""
+    from splat_core.io.checks import convention_check, depth_stats, trajectory_length
+
+    intr = source.intrinsics
+    stamps = source.timestamps
+    info = {
+        "path": str(source.path),
+        "format": source.format_name,
+        "frames": len(source),
+        "resolution": [intr.width, intr.height],
+        "intrinsics": intr.to_dict(),
+        "duration_s": float(stamps[-1] - stamps[0]) if len(stamps) else 0.0,
+    }
+    for attr in ("color_size", "depth_size"):
+        if hasattr(source, attr):
+            info[attr] = list(getattr(source, attr))
+    depth = depth_stats(source)
+    info["depth"] = depth.to_dict()
+    c2w = source.reference_c2w() if source.has_reference_poses else None
+    info["reference_poses"] = c2w is not None
+    info["frames_with_pose"] = 0 if c2w is None else int(sum(bool((T == T).all()) for T in c2w))
+    info["trajectory_length_m"] = trajectory_length(c2w)
+    info["pose_check"] = convention_check(source, gap=gap).to_dict() if c2w is not None else None
+    warnings = list(getattr(source, "warnings", []))
+    if depth.message:
+        warnings.append(depth.message)
+    if info["pose_check"] and info["pose_check"]["ok"] is False:
+        warnings.append("pose check: " + info["pose_check"]["message"])
+    info["warnings"] = warnings
+    return info
+
+
+def _cm(v):
+    return "n/a" if v is None else f"{v * 100:.1f} cm"
+
+
+def format_text(info: dict) -> str:
+    i = info["intrinsics"]
+    d = info["depth"]
+    lines = [
+        f"capture      {info['path']}",
+        f"format       {info['format']}",
+        f"frames       {info['frames']} ({info['duration_s']:.2f} s)",
+        f"resolution   {info['resolution'][0]}x{info['resolution'][1]}"
+        + (f" (colour {info['color_size'][0]}x{info['color_size'][1]}, depth {info['depth_size'][0]}x"
+           f"{info['depth_size'][1]})" if info.get("color_size") and info["color_size"] != info["depth_size"] else ""),
+        f"intrinsics   fx {i['fx']:.2f}  fy {i['fy']:.2f}  cx {i['cx']:.2f}  cy {i['cy']:.2f}",
+    ]
+    if d["median_m"] is None:
+        lines.append(f"depth        no valid depth in frames {d['frames']}")
+    else:
+        lines.append(f"depth        {d['min_m']:.2f} - {d['max_m']:.2f} m, median {d['median_m']:.2f} m, "
+                     f"{d['valid_fraction'] * 100:.0f}% valid (frames {', '.join(map(str, d['frames']))})")
+    if info["reference_poses"]:
+        lines.append(f"ref. poses   yes ({info['frames_with_pose']} of {info['frames']} frames), "
+                     f"trajectory {info['trajectory_length_m']:.3f} m")
+        pc = info["pose_check"]
+        if pc["median_abs_dz_m"] is not None:
+            alt = ", ".join(f"{k} {_cm(v)}" for k, v in pc["alternatives"].items())
+            pairs = ", ".join(f"{a}->{b}" for a, b in pc["pairs"])
+            lines.append(f"pose check   median |dz| {_cm(pc['median_abs_dz_m'])}, "
+                         f"{pc['fraction_below_5cm'] * 100:.0f}% < 5 cm (frames {pairs}; if misread: {alt}) "
+                         f"-> {'OK' if pc['ok'] else 'SUSPICIOUS'}")
+        else:
+            lines.append(f"pose check   {pc['message']}")
+    else:
+        lines.append("ref. poses   no")
+    for w in info["warnings"]:
+        lines.append(f"warning      {w}")
+    return "\n".join(lines)
+
+
+def main(args) -> int:
+    from splat_core.io import open_capture
+
+    source = open_capture(args.input, format=args.format)
+    info = gather(source, gap=args.gap)
+    print(json.dumps(info, indent=2) if args.json else format_text(info))
+    return 0

@@ -1,0 +1,116 @@
+"""`splatam-viewer`: live SLAM in the browser, or `--open` a finished run / .ply to browse it."""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+from splat_core.errors import InputError
+
+DEFAULT_PORT = 8080
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--input", default=None, help="capture folder or .r3d/.zip (default: the synthetic demo scene)")
+    p.add_argument("--format", default=None, help="capture format (default: detected)")
+    p.add_argument("--config", default=None, help="preset name(s) joined by '+' or a YAML file "
+                   "(default: cpu on a CPU, splatam on a GPU)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=None,
+                   help=f"port (default {DEFAULT_PORT}, or the next free one; an explicit port must be free; 0 = any)")
+    p.add_argument("--out", default=None, help="run folder to write (default: runs/viewer-<time>)")
+    p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
+    p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--open", default=None, metavar="RUN_DIR|MAP.ply",
+                   help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
+    p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
+
+
+def port_is_free(host: str, port: int) -> bool:
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind((host, port))
+        except OSError:
+            return False
+    return True
+
+
+def start_server(host: str, port: int | None):
+    """A viser server; an explicitly requested port must be free (viser would silently move on)."""
+    import viser
+
+    explicit = port is not None and port != 0
+    if explicit and not port_is_free(host, port):
+        raise InputError(f"--port {port}: {host}:{port} is already in use; choose another port or pass --port 0")
+    server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
+    if explicit and server.get_port() != port:
+        server.stop()
+        raise InputError(f"--port {port}: {host}:{port} is already in use")
+    return server
+
+
+def main(args) -> int:
+    from app.viewer import StaticSource, build_viewer
+
+    worker = None
+    if args.open:
+        from app.browse import load_run
+
+        opened = Path(args.open)
+        snapshot = load_run(opened)
+        source = StaticSource(snapshot)
+        export_dir = Path(args.out) if args.out else (
+            opened / "export" if opened.is_dir() else opened.parent / f"{opened.stem}_export")
+        what = f"browsing {opened} ({snapshot.num_gaussians:,} Gaussians)"
+    else:
+        from app.commands.run import default_config_name
+        from app.worker import SlamWorker
+        from splat_core.config import load_config
+        from splat_core.pipeline import Pipeline, config_summary, open_input, resolve_device
+
+        out = Path(args.out) if args.out else Path("runs") / datetime.now().strftime("viewer-%Y%m%d-%H%M%S")
+        if out.exists() and not out.is_dir():
+            raise InputError(f"{out}: --out must be a folder")
+        if (out / "checkpoint").exists():
+            raise InputError(f"{out}: already holds a run; choose another --out")
+        device = resolve_device(args.device)
+        config = load_config(args.config or default_config_name(device))
+        src = open_input(args.input, format=args.format)
+        pipe = Pipeline(src, config, out, device=args.device, max_frames=args.max_frames, stride=args.stride)
+        worker = SlamWorker(pipe, start_paused=args.paused)
+        source, export_dir = worker, out
+        what = (f"{src.describe()}; config {config_summary(config)}; device {pipe.device}; "
+                f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}")
+
+    server = start_server(args.host, args.port)
+    app = build_viewer(server, source, export_dir=export_dir)
+    url = f"http://{args.host}:{server.get_port()}/"
+    print(what, file=sys.stderr)
+    print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
+    print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
+    if worker is not None:
+        worker.start()
+    announced = False
+    try:
+        while True:
+            time.sleep(0.5)
+            if worker is not None and not announced and not worker.is_alive():
+                announced = True
+                snap = worker.latest()
+                print(f"SLAM {snap.state}: {snap.message}; the viewer stays up for browsing", flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        if worker is not None and worker.is_alive():
+            print("stopping SLAM and writing the run folder…", file=sys.stderr, flush=True)
+            worker.stop(join_timeout=600)
+        app.close()
+        server.stop()
+    return 0

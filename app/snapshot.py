@@ -1,0 +1,123 @@
+"""MapSnapshot: what the SLAM worker publishes and the viewer draws (DESIGN.md §2).
+
+A snapshot is immutable once published: numpy copies of the map, the keyframes, both
+trajectories and the recent metrics. Only the latest one is kept; the viewer pulls it at its own
+pace, so a slow browser never slows tracking down. Arrays are marked read-only so an accidental
+write fails loudly instead of racing with the worker.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from splat_core.camera import Intrinsics
+
+# Worker / viewer states shown in the status panel.
+STATES = ("starting", "running", "paused", "finished", "stopped", "error", "browse")
+
+HISTORY_KEYS = ("frame", "tracking_loss", "ate_cm", "seconds", "psnr", "num_gaussians")
+
+
+def frozen(a):
+    """A read-only numpy array (copied unless already a private read-only array)."""
+    if a is None:
+        return None
+    a = np.array(a, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class KeyframeView:
+    """One keyframe as the viewer shows it: pose, a small thumbnail and the captured images."""
+
+    frame_index: int            # processed-frame number (matches Gaussians' birth_frame)
+    c2w: np.ndarray             # 4 x 4, camera-to-world, OpenCV axes
+    thumbnail: np.ndarray       # h x w x 3 uint8 (about 100 px tall)
+    color: np.ndarray | None = None   # H x W x 3 float32 in [0, 1] at the working resolution
+    depth: np.ndarray | None = None   # H x W float32 metres
+
+
+@dataclass(frozen=True)
+class LiveView:
+    """The latest frame: what the camera captured and our render of the map from its tracked pose."""
+
+    frame_index: int
+    color: np.ndarray           # captured, H x W x 3 float32
+    depth: np.ndarray           # captured, H x W float32
+    render_color: np.ndarray | None = None
+    render_depth: np.ndarray | None = None
+    render_alpha: np.ndarray | None = None   # the silhouette
+    psnr: float | None = None
+
+
+@dataclass(frozen=True)
+class MapSnapshot:
+    version: int                           # increases with every publication
+    state: str                             # one of STATES
+    frame_index: int                       # last processed frame (-1 before the first)
+    total_frames: int
+    map_version: int                       # changes only when `gaussians` changed
+    gaussians: dict                        # raw arrays as GaussianMap.to_numpy() (read-only)
+    keyframes: tuple = ()                  # KeyframeView, in insertion order
+    intrinsics: Intrinsics | None = None   # working resolution
+    timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    estimated_c2w: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    reference_c2w: np.ndarray | None = None  # T x 4 x 4, NaN where a frame has none
+    history: dict = field(default_factory=dict)  # HISTORY_KEYS -> 1-D arrays, one entry per frame
+    live: LiveView | None = None
+    seconds_per_frame: float | None = None
+    ate_cm: float | None = None
+    message: str = ""
+    out_dir: Path | None = None
+
+    @property
+    def num_gaussians(self) -> int:
+        return int(len(self.gaussians.get("means", ())))
+
+    @property
+    def keyframe_frames(self) -> np.ndarray:
+        return np.array([kf.frame_index for kf in self.keyframes], dtype=np.int64)
+
+    @property
+    def processed(self) -> int:
+        return self.frame_index + 1
+
+
+def empty_gaussians() -> dict:
+    return dict(means=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.float32),
+                rotations=np.zeros((0, 4), np.float32), logit_opacities=np.zeros(0, np.float32),
+                log_scales=np.zeros((0, 1), np.float32), birth_frame=np.zeros(0, np.int64))
+
+
+def freeze_gaussians(arrays: dict) -> dict:
+    """Read-only copies of the Gaussian arrays (birth_frame added as zeros when absent)."""
+    n = len(arrays["means"])
+    out = {k: frozen(v) for k, v in arrays.items()}
+    if out.get("birth_frame") is None:
+        out["birth_frame"] = frozen(np.zeros(n, np.int64))
+    return out
+
+
+def make_thumbnail(color: np.ndarray, height: int = 100) -> np.ndarray:
+    """A small uint8 copy of a float colour image for frustum textures."""
+    import cv2
+
+    h, w = color.shape[:2]
+    width = max(1, int(round(w * height / h)))
+    img = np.clip(np.asarray(color, np.float32), 0, 1)
+    small = cv2.resize(img, (width, height), interpolation=cv2.INTER_AREA) if h > height else img
+    return (small * 255.0 + 0.5).astype(np.uint8)
+
+
+def keyframe_buckets(birth_frame: np.ndarray, keyframe_frames: np.ndarray) -> np.ndarray:
+    """For each Gaussian, the keyframe whose map first contains it.
+
+    Bucket k holds the Gaussians born in (kf_{k-1}, kf_k]; K (= number of keyframes) is the
+    tail born after the last keyframe. Showing buckets 0..k shows the map as it was at keyframe k.
+    """
+    return np.searchsorted(np.asarray(keyframe_frames, np.int64), np.asarray(birth_frame, np.int64),
+                           side="left")

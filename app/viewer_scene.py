@@ -1,0 +1,253 @@
+"""The 3D scene: the map as splat chunks per keyframe, keyframe frustums, trajectories and the
+current camera. Only this module and the panels call viser's scene API.
+
+Map layout (viser_notes §1.2): viser has no splat append and every change costs O(N_total) in
+the browser, so the map is split by birth keyframe. Node `/map/kf_<frame>` holds the Gaussians
+born in (previous keyframe, keyframe]; `/map/tail` those born after the last keyframe. A new
+keyframe sends only its own chunk; the tail is small. Because SLAM keeps refining old Gaussians
+(and prunes some), every node is refreshed from the latest snapshot in one atomic
+"consolidation" every few keyframes / seconds and whenever the run pauses or ends. Scrubbing to
+keyframe k just toggles visibility of the chunks after k (cheap: no re-upload).
+
+Covariances travel as float16, so positions and covariances are uploaded multiplied by
+WORLD_SCALE and each node gets `scale=1/WORLD_SCALE` (the notes' nerfstudio trick), keeping
+millimetre-sized Gaussians representable.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import viser
+
+from splat_core.camera import rotmat_to_quat
+
+from .snapshot import MapSnapshot, keyframe_buckets
+
+WORLD_SCALE = 10.0
+
+
+def splat_payload(arrays: dict, index: np.ndarray | None = None):
+    """(centers, covariances, rgbs, opacities (N,1)) for viser from raw Gaussian arrays,
+    in the uploaded (WORLD_SCALE-multiplied) units."""
+    sel = (lambda a: a) if index is None else (lambda a: a[index])  # noqa: E731
+    means = np.asarray(sel(arrays["means"]), np.float32)
+    n = len(means)
+    log_scales = np.asarray(sel(arrays["log_scales"]), np.float32).reshape(n, -1)
+    var = np.exp(2.0 * log_scales.astype(np.float64)) * WORLD_SCALE ** 2
+    if log_scales.shape[1] == 1:
+        cov = np.zeros((n, 3, 3), np.float32)
+        cov[:, 0, 0] = cov[:, 1, 1] = cov[:, 2, 2] = var[:, 0]
+    else:
+        q = np.asarray(sel(arrays["rotations"]), np.float64)
+        q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-12)
+        w, x, y, z = q.T
+        R = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+                      2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+                      2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+                     axis=1).reshape(n, 3, 3)
+        cov = np.einsum("nij,nj,nkj->nik", R, var, R).astype(np.float32)
+    rgbs = np.clip(np.asarray(sel(arrays["colors"]), np.float32), 0.0, 1.0)
+    logits = np.asarray(sel(arrays["logit_opacities"]), np.float64).reshape(n, 1)
+    opacities = (1.0 / (1.0 + np.exp(-logits))).astype(np.float32)
+    return means * np.float32(WORLD_SCALE), cov, rgbs, opacities
+
+
+class MapLayer:
+    """Splat chunks per keyframe under `/map` (see the module docstring)."""
+
+    def __init__(self, server: viser.ViserServer, consolidate_every: int = 5,
+                 consolidate_interval_s: float = 10.0):
+        self.server = server
+        self.consolidate_every = consolidate_every
+        self.consolidate_interval_s = consolidate_interval_s
+        self._lock = threading.RLock()
+        self._nodes: dict[str, viser.GaussianSplatHandle] = {}   # name -> handle (non-empty only)
+        self._order: list[str] = []                               # chunk names, keyframe order
+        self._limit: int | None = None                           # show chunks 0..limit; None = all
+        self._map_version = -1
+        self._keyframes_at_consolidation = 0
+        self._consolidated_at = time.monotonic()
+        self.last_update_seconds = 0.0
+        self.consolidations = 0
+
+    @staticmethod
+    def chunk_name(frame_index: int) -> str:
+        return f"/map/kf_{frame_index:06d}"
+
+    @property
+    def node_names(self) -> list[str]:
+        return list(self._nodes)
+
+    def update(self, snap: MapSnapshot, force_consolidate: bool = False) -> bool:
+        """Bring the chunks up to date with `snap`; returns True if anything was sent."""
+        with self._lock:
+            if snap.map_version == self._map_version and not force_consolidate:
+                return False
+            t0 = time.perf_counter()
+            kf_frames = snap.keyframe_frames
+            K = len(kf_frames)
+            consolidate = force_consolidate or (
+                K - self._keyframes_at_consolidation >= self.consolidate_every
+                or time.monotonic() - self._consolidated_at >= self.consolidate_interval_s)
+            bucket = keyframe_buckets(snap.gaussians["birth_frame"], kf_frames)
+            counts = np.bincount(bucket, minlength=K + 1)
+            order = np.argsort(bucket, kind="stable")
+            starts = np.concatenate([[0], np.cumsum(counts)])
+            names = [self.chunk_name(int(f)) for f in kf_frames] + ["/map/tail"]
+            # Compute every payload before touching viser (atomic() stalls all traffic).
+            payloads = {}
+            for k, name in enumerate(names):
+                is_new = name not in self._order
+                if consolidate or is_new or name == "/map/tail":
+                    idx = order[starts[k]:starts[k + 1]]
+                    payloads[name] = splat_payload(snap.gaussians, idx) if len(idx) else None
+            with self.server.atomic():
+                for name, payload in payloads.items():
+                    self._send(name, payload, self._visible(names.index(name), K))
+                for stale in [n for n in self._order if n not in names]:  # keyframes never vanish,
+                    self._drop(stale)                                      # but be safe
+            self._order = names
+            self._map_version = snap.map_version
+            if consolidate:
+                self._keyframes_at_consolidation = K
+                self._consolidated_at = time.monotonic()
+                self.consolidations += 1
+            self.last_update_seconds = time.perf_counter() - t0
+            return True
+
+    def _send(self, name: str, payload, visible: bool) -> None:
+        handle = self._nodes.get(name)
+        if payload is None:
+            self._drop(name)
+            return
+        if handle is None:
+            self._nodes[name] = self.server.scene.add_gaussian_splats(
+                name, *payload, scale=1.0 / WORLD_SCALE, visible=visible)
+        else:
+            handle.set_gaussians(*payload)
+            if handle.visible != visible:
+                handle.visible = visible
+
+    def _drop(self, name: str) -> None:
+        handle = self._nodes.pop(name, None)
+        if handle is not None:
+            handle.remove()
+
+    def _visible(self, k: int, K: int) -> bool:
+        if self._limit is None:
+            return True
+        return k <= self._limit and k < K
+
+    def show_upto(self, limit: int | None) -> None:
+        """Show the map as it was at keyframe `limit` (None: the whole current map)."""
+        with self._lock:
+            self._limit = limit
+            K = len(self._order) - 1
+            with self.server.atomic():
+                for k, name in enumerate(self._order):
+                    handle = self._nodes.get(name)
+                    if handle is not None:
+                        visible = self._visible(k, K)
+                        if handle.visible != visible:
+                            handle.visible = visible
+
+
+def wxyz_position(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    c2w = np.asarray(c2w, np.float64)
+    return rotmat_to_quat(c2w[:3, :3]), c2w[:3, 3].copy()
+
+
+def trajectory_segments(c2w: np.ndarray) -> np.ndarray:
+    """(T,4,4) poses -> (S,2,3) line segments between consecutive finite camera centres."""
+    centres = np.asarray(c2w, np.float64)[:, :3, 3]
+    centres = centres[np.all(np.isfinite(centres), axis=1)]
+    if len(centres) < 2:
+        return np.zeros((0, 2, 3), np.float32)
+    return np.stack([centres[:-1], centres[1:]], axis=1).astype(np.float32)
+
+
+class CameraLayer:
+    """Keyframe frustums (with thumbnails, clickable), trajectories and the current camera."""
+
+    def __init__(self, server: viser.ViserServer, colors: dict, on_keyframe_click=None):
+        self.server = server
+        self.colors = colors
+        self.on_keyframe_click = on_keyframe_click
+        self.frustum_scale: float | None = None
+        self._frustums: dict[int, viser.CameraFrustumHandle] = {}
+        self._selected: int | None = None
+        self._current = None
+        self._traj_len = {"estimated": -1, "reference": -1}
+        self._lock = threading.RLock()
+
+    @property
+    def keyframe_frames(self) -> list[int]:
+        return list(self._frustums)
+
+    def _scale_for(self, snap: MapSnapshot) -> float:
+        if self.frustum_scale is None:
+            means = snap.gaussians["means"]
+            if len(means) == 0 and len(snap.estimated_c2w) < 2:
+                return 0.1
+            extent = float(np.median(np.linalg.norm(means - np.median(means, axis=0), axis=1))) \
+                if len(means) else float(np.ptp(snap.estimated_c2w[:, :3, 3], axis=0).max())
+            self.frustum_scale = float(np.clip(0.15 * extent, 0.02, 0.5))
+        return self.frustum_scale
+
+    def update(self, snap: MapSnapshot) -> None:
+        with self._lock:
+            scale = self._scale_for(snap)
+            intr = snap.intrinsics
+            fov = intr.fov_y if intr else np.deg2rad(55.0)
+            aspect = intr.width / intr.height if intr else 4.0 / 3.0
+            for kf in snap.keyframes:
+                if kf.frame_index in self._frustums:
+                    continue
+                wxyz, pos = wxyz_position(kf.c2w)
+                handle = self.server.scene.add_camera_frustum(
+                    f"/keyframes/kf_{kf.frame_index:06d}", fov=fov, aspect=aspect, scale=scale,
+                    thickness=1.5, thickness_units="screen", color=self._color_of(kf.frame_index),
+                    image=kf.thumbnail, format="jpeg", jpeg_quality=80, wxyz=wxyz, position=pos)
+                if self.on_keyframe_click is not None:
+                    handle.on_click(lambda ev, f=kf.frame_index: self.on_keyframe_click(ev, f))
+                self._frustums[kf.frame_index] = handle
+            self._update_trajectory("estimated", snap.estimated_c2w)
+            if snap.reference_c2w is not None:
+                self._update_trajectory("reference", snap.reference_c2w)
+            if len(snap.estimated_c2w) and snap.state != "browse":
+                wxyz, pos = wxyz_position(snap.estimated_c2w[-1])
+                if self._current is None:
+                    self._current = self.server.scene.add_camera_frustum(
+                        "/camera/current", fov=fov, aspect=aspect, scale=scale * 1.3,
+                        thickness=3.0, thickness_units="screen", color=self.colors["current"],
+                        wxyz=wxyz, position=pos)
+                else:
+                    self._current.wxyz, self._current.position = wxyz, pos
+
+    def _update_trajectory(self, which: str, c2w: np.ndarray) -> None:
+        if len(c2w) == self._traj_len[which]:
+            return
+        self._traj_len[which] = len(c2w)
+        seg = trajectory_segments(c2w)
+        if len(seg) == 0:
+            return
+        self.server.scene.add_line_segments(
+            f"/trajectory/{which}", seg, colors=np.array(self.colors[which], np.uint8),
+            thickness=2.5 if which == "estimated" else 2.0, thickness_units="screen")
+
+    def _color_of(self, frame_index: int):
+        return self.colors["selected"] if frame_index == self._selected else self.colors["keyframe"]
+
+    def select(self, frame_index: int | None, hide: bool = False) -> None:
+        """Highlight one keyframe's frustum (None: no highlight). `hide` hides it instead, for
+        when the browser camera sits at that keyframe: its image would cover the whole view."""
+        with self._lock:
+            previous, self._selected = self._selected, frame_index
+            with self.server.atomic():
+                for f in (previous, frame_index):
+                    if f is not None and f in self._frustums:
+                        self._frustums[f].color = self._color_of(f)
+                        self._frustums[f].visible = not (hide and f == frame_index)

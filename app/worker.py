@@ -1,0 +1,232 @@
+"""SlamWorker: runs the SLAM pipeline in a thread and publishes MapSnapshots.
+
+The worker owns the pipeline: it is the only thread that calls `step()` or reads the live
+optimiser tensors. After each frame it publishes an immutable snapshot (latest only) and
+renders the map from the tracked pose for the live panel. It obeys pause / resume / step one
+frame / stop between frames, never calls viser, and when the sequence ends it writes the run
+folder with `pipeline.finish()` (as `splatam run` does) and stays alive only as a last snapshot.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import traceback
+
+import numpy as np
+
+from .images import psnr
+from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, empty_gaussians, freeze_gaussians,
+                       frozen, make_thumbnail)
+
+log = logging.getLogger(__name__)
+
+
+class SlamWorker(threading.Thread):
+    """Runs `pipeline` frame by frame; `latest()` returns the newest MapSnapshot.
+
+    map_interval_s: the Gaussian arrays are copied at most this often (and on every keyframe,
+    pause and at the end); the other snapshot fields are refreshed after every frame.
+    live_render: render the map at the tracked pose (colour, depth, silhouette) for the panel,
+    at most `live_max_width` pixels wide.
+    """
+
+    def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
+                 render_backend: str = "auto", live_max_width: int = 320,
+                 map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0):
+        super().__init__(name="slam-worker", daemon=True)
+        self.pipeline = pipeline
+        self.live_render = live_render
+        self.render_backend = render_backend
+        self.live_max_width = live_max_width
+        self.map_interval_s = map_interval_s
+        self.frame_delay_s = frame_delay_s
+        self.out_dir = out_dir if out_dir is not None else getattr(pipeline, "out_dir", None)
+        self.metrics: dict | None = None
+        self.error: BaseException | None = None
+
+        self._cond = threading.Condition()
+        self._paused = start_paused
+        self._steps_requested = 0
+        self._stop_requested = False
+        self._state = "paused" if start_paused else "starting"
+        self._snapshot: MapSnapshot | None = None
+        self._version = 0
+        self._map_version = 0
+        self._map_arrays = freeze_gaussians(empty_gaussians())
+        self._map_copied_at = -1e9
+        self._keyframe_views: dict[int, KeyframeView] = {}
+        self._history = {k: [] for k in HISTORY_KEYS}
+        self._timestamps: list[float] = []
+        self._live: LiveView | None = None
+        self._last_frame_index = -1
+        self._publish(force_map=True)
+
+    # ------------------------------------------------------------------ controls (any thread)
+    def pause(self) -> None:
+        with self._cond:
+            self._paused = True
+            self._cond.notify_all()
+
+    def resume(self) -> None:
+        with self._cond:
+            self._paused = False
+            self._cond.notify_all()
+
+    def step_once(self) -> None:
+        """Process exactly one more frame, then stay paused."""
+        with self._cond:
+            self._paused = True
+            self._steps_requested += 1
+            self._cond.notify_all()
+
+    def stop(self, join_timeout: float | None = None) -> None:
+        """Stop after the current frame; the run folder is still written (a partial run)."""
+        with self._cond:
+            self._stop_requested = True
+            self._cond.notify_all()
+        if join_timeout is not None and self.is_alive():
+            self.join(join_timeout)
+
+    @property
+    def paused(self) -> bool:
+        return self._paused
+
+    @property
+    def state(self) -> str:
+        return self._state
+
+    def latest(self) -> MapSnapshot | None:
+        return self._snapshot
+
+    def wait_for(self, predicate, timeout: float = 10.0) -> MapSnapshot | None:
+        """Block until predicate(latest snapshot) is true (tests and the benchmark use this)."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while not predicate(self._snapshot):
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return None
+                self._cond.wait(min(left, 0.2))
+            return self._snapshot
+
+    # ------------------------------------------------------------------ the thread
+    def run(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    if not self._stop_requested and self._paused and self._steps_requested == 0:
+                        self._state = "paused"
+                        self._publish(force_map=True)
+                    while not self._stop_requested and self._paused and self._steps_requested == 0:
+                        self._cond.wait(0.5)
+                    if self._stop_requested:
+                        break
+                    if self._steps_requested:
+                        self._steps_requested -= 1
+                    self._state = "running" if not self._paused else "paused"
+                result = self.pipeline.step()
+                if result is None:
+                    break
+                self._after_frame(result)
+                if self.frame_delay_s:
+                    time.sleep(self.frame_delay_s)
+            stopped = self._stop_requested
+            self.metrics = self.pipeline.finish()
+            self._state = "stopped" if stopped else "finished"
+            message = f"run written to {self.out_dir}" if self.out_dir else "run complete"
+            self._publish(force_map=True, message=message)
+        except BaseException as e:  # the viewer stays up and shows the error
+            self.error = e
+            log.error("SLAM worker failed:\n%s", traceback.format_exc())
+            self._state = "error"
+            self._publish(force_map=False, message=f"SLAM failed: {type(e).__name__}: {e}")
+
+    def _after_frame(self, r) -> None:
+        pipe = self.pipeline
+        self._last_frame_index = int(r.index)
+        self._timestamps.append(float(r.timestamp))
+        live = self._render_live(r) if self.live_render else LiveView(
+            int(r.index), frozen(r.frame.color), frozen(r.frame.depth))
+        self._live = live
+        seconds = float((r.tracking_seconds or 0.0) + (r.mapping_seconds or 0.0))
+        ate = pipe.ate_cm()
+        for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
+                           ("seconds", seconds), ("psnr", live.psnr), ("num_gaussians", r.num_gaussians)):
+            self._history[key].append(np.nan if value is None else float(value))
+        self._publish(force_map=bool(r.is_keyframe))
+
+    def _render_live(self, r) -> LiveView:
+        frame = r.frame
+        color, depth = frame.color, frame.depth
+        try:
+            import torch
+
+            from splat_core.render import render
+
+            intr = frame.intrinsics
+            if intr.width > self.live_max_width:
+                w = self.live_max_width
+                intr = intr.scaled(w, max(1, int(round(intr.height * w / intr.width))))
+            with torch.no_grad():
+                out = render(self.pipeline.slam.map.tensors(detach=True), intr, r.w2c,
+                             backend=self.render_backend)
+            rc, rd, ra = (t.detach().cpu().numpy() for t in out)
+            import cv2
+
+            small = cv2.resize(color, (intr.width, intr.height), interpolation=cv2.INTER_AREA) \
+                if intr.width != frame.width else color
+            return LiveView(int(r.index), frozen(color), frozen(depth), frozen(rc), frozen(rd),
+                            frozen(ra), psnr(rc, small))
+        except Exception:  # a failed preview must never stop SLAM
+            log.warning("live render failed:\n%s", traceback.format_exc())
+            return LiveView(int(r.index), frozen(color), frozen(depth))
+
+    # ------------------------------------------------------------------ snapshots
+    def _keyframes(self) -> tuple:
+        views = []
+        store = getattr(self.pipeline.slam, "keyframes", None)
+        for kf in list(getattr(store, "items", store) or []):
+            view = self._keyframe_views.get(kf.frame_index)
+            if view is None:
+                c2w = np.linalg.inv(np.asarray(kf.w2c, np.float64))
+                view = KeyframeView(int(kf.frame_index), frozen(c2w), frozen(make_thumbnail(kf.color)),
+                                    frozen(kf.color), frozen(kf.depth))
+                self._keyframe_views[kf.frame_index] = view
+            views.append(view)
+        return tuple(views)
+
+    def _publish(self, force_map: bool = False, message: str = "") -> None:
+        pipe = self.pipeline
+        slam = getattr(pipe, "slam", None)
+        now = time.monotonic()
+        if slam is not None and (force_map or now - self._map_copied_at >= self.map_interval_s):
+            self._map_arrays = freeze_gaussians(slam.map.to_numpy())
+            self._map_version += 1
+            self._map_copied_at = now
+        est = pipe.estimated_c2w() if self._last_frame_index >= 0 else []
+        ref = pipe.reference_c2w() if self._last_frame_index >= 0 else []
+        reference = None
+        if ref and any(p is not None for p in ref):
+            reference = np.stack([np.full((4, 4), np.nan) if p is None else np.asarray(p, np.float64)
+                                  for p in ref])
+        history = {k: frozen(np.asarray(v, np.float64)) for k, v in self._history.items()}
+        secs = history["seconds"]
+        ate = history["ate_cm"]
+        with self._cond:
+            self._version += 1
+            self._snapshot = MapSnapshot(
+                version=self._version, state=self._state, frame_index=self._last_frame_index,
+                total_frames=int(pipe.total), map_version=self._map_version,
+                gaussians=self._map_arrays,
+                keyframes=self._keyframes() if slam is not None else (),
+                intrinsics=getattr(slam, "intrinsics", None),
+                timestamps=frozen(np.asarray(self._timestamps, np.float64)),
+                estimated_c2w=frozen(np.stack(est) if len(est) else np.zeros((0, 4, 4))),
+                reference_c2w=frozen(reference), history=history, live=self._live,
+                seconds_per_frame=float(np.nanmean(secs[-10:])) if len(secs) else None,
+                ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,
+                message=message, out_dir=self.out_dir,
+            )
+            self._cond.notify_all()

@@ -1,0 +1,188 @@
+"""Cameras: intrinsics, pose <-> quaternion, constant-velocity prediction.
+
+Conventions (DESIGN.md §3), stated once here:
+- Camera axes are OpenCV: +x right, +y down, +z forward.
+- Pixel centres sit at integer image coordinates: pixel (u, v) (column u, row v) is the point
+  x = u, y = v, and a camera point (X, Y, Z) projects to (fx X/Z + cx, fy Y/Z + cy). So a
+  depth pixel back-projected with `backproject` re-projects exactly onto itself.
+- Quaternions are (w, x, y, z), Hamilton convention, scalar first.
+- `w2c` maps world points into the camera; `c2w` is its inverse.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .errors import InputError
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics for an image of `width` x `height` pixels."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self):
+        if not (self.fx > 0 and self.fy > 0 and self.width > 0 and self.height > 0):
+            raise InputError(
+                f"intrinsics must be positive, got fx={self.fx} fy={self.fy} "
+                f"width={self.width} height={self.height}"
+            )
+        if not all(np.isfinite([self.fx, self.fy, self.cx, self.cy])):
+            raise InputError(f"intrinsics must be finite, got {self}")
+
+    def scaled(self, width: int, height: int) -> "Intrinsics":
+        """The same camera at another resolution (pixel-centre convention preserved)."""
+        sx, sy = width / self.width, height / self.height
+        # With centres at integer coordinates, the image spans [-0.5, W-0.5]; scaling maps that span.
+        return Intrinsics(
+            self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5,
+            int(width), int(height),
+        )
+
+    @property
+    def K(self) -> np.ndarray:
+        return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)
+
+    @property
+    def mean_focal(self) -> float:
+        return 0.5 * (self.fx + self.fy)
+
+    @property
+    def fov_y(self) -> float:
+        """Vertical field of view in radians."""
+        return 2.0 * float(np.arctan2(self.height / 2.0, self.fy))
+
+    def to_dict(self) -> dict:
+        return dict(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
+
+
+# ----------------------------------------------------------------------------- quaternions (torch)
+
+def quat_to_rotmat(q: torch.Tensor) -> torch.Tensor:
+    """(..., 4) quaternions (w, x, y, z), not necessarily unit -> (..., 3, 3) rotation matrices."""
+    q = q / q.norm(dim=-1, keepdim=True)
+    w, x, y, z = q.unbind(-1)
+    rows = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+        2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+        2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y),
+    ]
+    return torch.stack(rows, dim=-1).reshape(q.shape[:-1] + (3, 3))
+
+
+def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product a * b of (..., 4) quaternions (w, x, y, z)."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ], dim=-1)
+
+
+def w2c_from_quat_trans(q: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
+    """Differentiable 4x4 world-to-camera matrix from a quaternion (4,) and a translation (3,)."""
+    top = torch.cat([quat_to_rotmat(q), t.reshape(3, 1)], dim=1)
+    bottom = torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=top.dtype, device=top.device)
+    return torch.cat([top, bottom], dim=0)
+
+
+# ----------------------------------------------------------------------------- quaternions (numpy)
+
+def rotmat_to_quat(R: np.ndarray) -> np.ndarray:
+    """3x3 rotation matrix -> unit quaternion (w, x, y, z) with w >= 0 (numerically stable branch)."""
+    R = np.asarray(R, dtype=np.float64)
+    m = R
+    trace = m[0, 0] + m[1, 1] + m[2, 2]
+    if trace > 0:
+        s = 2.0 * np.sqrt(trace + 1.0)
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2])
+        q = [(m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = 2.0 * np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2])
+        q = [(m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s]
+    else:
+        s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
+        q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
+    q = np.asarray(q)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def quat_to_rotmat_np(q) -> np.ndarray:
+    """(w, x, y, z) -> 3x3 rotation matrix (numpy, float64)."""
+    return quat_to_rotmat(torch.as_tensor(np.asarray(q, dtype=np.float64))).numpy()
+
+
+def pose_matrix(R: np.ndarray, t: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = np.asarray(t).reshape(3)
+    return T
+
+
+def invert_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4x4 transform (w2c <-> c2w) without a general matrix inverse."""
+    R, t = T[:3, :3], T[:3, 3]
+    return pose_matrix(R.T, -R.T @ t)
+
+
+def is_finite_pose(T) -> bool:
+    return T is not None and bool(np.all(np.isfinite(T)))
+
+
+OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
+
+
+def c2w_opengl_to_opencv(c2w_gl: np.ndarray) -> np.ndarray:
+    """Camera axes x right, y up, z backward (OpenGL/ARKit) -> OpenCV (formats.md)."""
+    return np.asarray(c2w_gl, dtype=np.float64) @ OPENGL_TO_OPENCV
+
+
+# ----------------------------------------------------------------------------- pixels
+
+def pixel_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Integer pixel coordinates (u = column, v = row), each HxW float64."""
+    return np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+
+
+def backproject(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """HxW depth (metres) -> HxWx3 camera-space points at the pixel centres (see module doc)."""
+    u, v = pixel_grid(intr.width, intr.height)
+    z = depth.astype(np.float64)
+    return np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=-1)
+
+
+def project(points_cam: np.ndarray, intr: Intrinsics) -> np.ndarray:
+    """(..., 3) camera-space points -> (..., 2) pixel coordinates (u, v)."""
+    z = points_cam[..., 2]
+    return np.stack([intr.fx * points_cam[..., 0] / z + intr.cx,
+                     intr.fy * points_cam[..., 1] / z + intr.cy], axis=-1)
+
+
+# ----------------------------------------------------------------------------- motion model
+
+def predict_constant_velocity(w2c_prev: np.ndarray, w2c_prev2: np.ndarray | None) -> np.ndarray:
+    """Predict the next w2c by applying the last relative motion again.
+
+    The paper describes constant velocity of the camera; we apply the last frame-to-frame motion
+    on SE(3) (T_t = T_{t-1} T_{t-2}^-1 T_{t-1}), which is exact for constant linear and angular
+    velocity, instead of the original code's quaternion-sum extrapolation of w2c translations.
+    """
+    if w2c_prev2 is None:
+        return w2c_prev.copy()
+    delta = w2c_prev @ invert_pose(w2c_prev2)
+    return delta @ w2c_prev

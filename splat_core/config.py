@@ -1,0 +1,184 @@
+"""Typed configuration: YAML presets in `configs/`, composed with '+', unknown keys are errors.
+
+    load_config("splatam")            the paper's Replica settings
+    load_config("splatam_s")          the paper's fast variant
+    load_config("cpu")                sized for a 2-core CPU
+    load_config("splatam+tum")        a preset, then a per-dataset override (configs/datasets/)
+    load_config("my.yaml")            any file; it may name `base: splatam` to start from a preset
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import yaml
+
+from .errors import InputError
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+
+
+@dataclass
+class TrackingConfig:
+    iterations: int = 40
+    lr_rotation: float = 4e-4             # Adam on the w2c quaternion
+    lr_translation: float = 2e-3          # Adam on the w2c translation
+    silhouette_threshold: float = 0.99    # only pixels the map already explains are used
+    depth_weight: float = 1.0
+    color_weight: float = 0.5
+    resolution_scale: float = 1.0         # track at this fraction of the working resolution
+    depth_loss_threshold: float | None = None  # if set: double the iterations once while above (per valid pixel, metres)
+    use_reference_poses: bool = False     # skip tracking, use the capture's poses (mapping only)
+    compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot
+    early_stop_tolerance: float = 0.0     # stop when the pose update is below this (m / rad); 0 = never
+
+
+@dataclass
+class MappingConfig:
+    iterations: int = 60
+    first_frame_iterations: int | None = None   # None = same as iterations
+    window_size: int = 24
+    map_every: int = 1
+    depth_weight: float = 1.0
+    color_weight: float = 0.5
+    ssim_weight: float = 0.2              # colour term = (1-w) L1 + w (1 - SSIM)
+    lrs: dict = field(default_factory=lambda: dict(
+        means=1e-4, colors=2.5e-3, rotations=1e-3, logit_opacities=5e-2, log_scales=1e-3))
+    prune_every: int = 20
+    prune_until: int = 20
+    prune_opacity: float = 0.005
+    prune_big_ratio: float = 0.1          # remove Gaussians larger than this x scene radius
+    visible_only: bool = True             # optimise only Gaussians seen from the window (same result for the rest: zero grads)
+
+
+@dataclass
+class DensifyConfig:
+    silhouette_threshold: float = 0.5
+    depth_error_factor: float = 50.0      # "new geometry in front": error > factor x median error
+    resolution_scale: float = 1.0         # densify at this fraction of the working resolution
+    initial_opacity: float = 0.5
+
+
+@dataclass
+class KeyframeConfig:
+    every: int = 5
+    selection: str = "overlap"            # "overlap" (paper: top-k) or "random" (original code)
+    overlap_samples: int = 1600
+    overlap_border: int = 20
+
+
+@dataclass
+class Config:
+    name: str = "splatam"
+    resolution: list | None = None        # [width, height] working resolution; None = capture's
+    max_depth: float | None = None        # ignore depth beyond this (metres)
+    isotropic: bool = True
+    near_plane: float = 0.01
+    scene_radius_depth_ratio: float = 3.0
+    seed: int = 0
+    checkpoint_every: int = 25            # frames; 0 = never
+    eval_every: int = 5                   # render metrics on every n-th frame at the end
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def validate(self) -> "Config":
+        checks = [
+            (self.tracking.iterations >= 0, "tracking.iterations must be >= 0"),
+            (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
+            (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
+            (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
+            (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
+            (self.keyframes.selection in ("overlap", "random"), "keyframes.selection must be overlap or random"),
+            (0 < self.tracking.resolution_scale <= 1, "tracking.resolution_scale must be in (0, 1]"),
+            (0 < self.densify.resolution_scale <= 1, "densify.resolution_scale must be in (0, 1]"),
+            (self.resolution is None or (len(self.resolution) == 2 and min(self.resolution) > 0),
+             "resolution must be [width, height]"),
+            (self.scene_radius_depth_ratio > 0, "scene_radius_depth_ratio must be > 0"),
+            (set(self.mapping.lrs) == {"means", "colors", "rotations", "logit_opacities", "log_scales"},
+             "mapping.lrs needs means, colors, rotations, logit_opacities, log_scales"),
+        ]
+        for ok, message in checks:
+            if not ok:
+                raise InputError(f"config {self.name}: {message}")
+        return self
+
+
+def _merge(target, values: dict, where: str):
+    """Apply a nested dict onto a dataclass instance; unknown keys are errors."""
+    names = {f.name: f for f in dataclasses.fields(target)}
+    for key, value in values.items():
+        if key not in names:
+            raise InputError(f"{where}: unknown config key {key!r} (known: {', '.join(sorted(names))})")
+        current = getattr(target, key)
+        if dataclasses.is_dataclass(current):
+            if not isinstance(value, dict):
+                raise InputError(f"{where}: {key} must be a mapping")
+            _merge(current, value, f"{where}: {key}")
+        elif isinstance(current, dict) and isinstance(value, dict):
+            unknown = set(value) - set(current)
+            if unknown:
+                raise InputError(f"{where}: unknown keys in {key}: {sorted(unknown)}")
+            setattr(target, key, {**current, **value})
+        else:
+            setattr(target, key, value)
+
+
+def _preset_path(name: str) -> Path:
+    for candidate in (CONFIG_DIR / f"{name}.yaml", CONFIG_DIR / "datasets" / f"{name}.yaml"):
+        if candidate.is_file():
+            return candidate
+    return Path(name)
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) + sorted(
+        p.stem for p in (CONFIG_DIR / "datasets").glob("*.yaml"))
+
+
+def _read_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise InputError(f"{path}: no such config file or preset (presets: {', '.join(preset_names())})")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise InputError(f"{path}: not valid YAML ({str(e).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a mapping of config keys")
+    return data
+
+
+def _apply(config: Config, spec: str, seen: tuple = ()) -> None:
+    path = _preset_path(spec)
+    if str(path) in seen:
+        raise InputError(f"{path}: 'base' chain loops")
+    data = _read_yaml(path)
+    base = data.pop("base", None)
+    if base:
+        _apply(config, str(base), seen + (str(path),))
+    _merge(config, data, str(path))
+
+
+def load_config(spec: str | None = None, overrides: dict | None = None) -> Config:
+    """Build a Config from preset names / files joined by '+', then `overrides` (a nested dict)."""
+    spec = spec or "splatam"
+    config = Config()
+    for part in spec.split("+"):
+        _apply(config, part.strip())
+    if overrides:
+        _merge(config, overrides, "overrides")
+    config.name = spec
+    return config.validate()
+
+
+def config_from_dict(data: dict) -> Config:
+    """Rebuild a resolved config (e.g. a run folder's config.yaml)."""
+    config = Config()
+    _merge(config, dict(data), "config")
+    return config.validate()

@@ -1,0 +1,50 @@
+"""Frame: one RGB-D observation, the unit every reader yields and the engine consumes."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .camera import Intrinsics
+
+
+@dataclass
+class Frame:
+    """One RGB-D frame.
+
+    color: HxWx3 float32 in [0, 1] (as stored, no gamma).
+    depth: HxW float32 metres, 0 = invalid.
+    intrinsics: for this colour/depth resolution.
+    c2w_ref: optional 4x4 reference pose (camera-to-world, OpenCV axes) in the capture's frame.
+    """
+
+    index: int
+    timestamp: float
+    color: np.ndarray
+    depth: np.ndarray
+    intrinsics: Intrinsics
+    c2w_ref: np.ndarray | None = None
+
+    @property
+    def height(self) -> int:
+        return self.depth.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.depth.shape[1]
+
+
+def resize_frame(frame: Frame, width: int, height: int) -> Frame:
+    """Bring a frame to a working resolution: colour by area averaging, depth by nearest
+    neighbour (never blend depth across edges), intrinsics scaled to match."""
+    import cv2
+
+    if (frame.width, frame.height) == (width, height):
+        return frame
+    shrink = width < frame.width
+    color = cv2.resize(frame.color, (width, height),
+                       interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+    depth = cv2.resize(frame.depth, (width, height), interpolation=cv2.INTER_NEAREST)
+    return Frame(frame.index, frame.timestamp, np.clip(color, 0.0, 1.0).astype(np.float32),
+                 depth.astype(np.float32), frame.intrinsics.scaled(width, height), frame.c2w_ref)

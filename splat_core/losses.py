@@ -1,0 +1,102 @@
+"""Image losses for tracking and mapping: masked L1 and SSIM (torch, differentiable).
+
+Images are H x W x C (the renderer's colour layout) or H x W (depth, silhouette); any float
+dtype and device. SSIM follows the standard 3D Gaussian splatting definition (spec §4.4): an
+11 x 11 Gaussian window with sigma 1.5 applied per channel (grouped convolution), zero padding
+of 5 pixels, C1 = 0.01^2, C2 = 0.03^2 (data range 1), and the mean of the SSIM map.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+SSIM_WINDOW = 11
+SSIM_SIGMA = 1.5
+SSIM_C1 = 0.01 ** 2
+SSIM_C2 = 0.03 ** 2
+
+
+def l1(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None,
+       reduction: str = "sum") -> torch.Tensor:
+    """L1 between `pred` and `target` (same shape, H x W or H x W x C).
+
+    mask: optional H x W (or same shape as pred) selection; a bool mask selects pixels (NaN in
+    unselected pixels does no harm), a float mask weights them. A H x W mask applies to every
+    channel.
+    reduction: "sum" (tracking: sum over selected pixels and channels), "mean" (mean over the
+    selected pixel-channel values, weighted for a float mask; 0 when nothing is selected), or "none" (per-element, masked
+    values 0).
+    """
+    if pred.shape != target.shape:
+        raise ValueError(f"l1: shapes differ {tuple(pred.shape)} vs {tuple(target.shape)}")
+    count = None
+    if mask is None:
+        diff = (pred - target).abs()
+    else:
+        if mask.dim() == pred.dim() - 1:
+            mask = mask.unsqueeze(-1)
+        mask = mask.expand_as(pred)
+        if mask.dtype == torch.bool:
+            # Select before subtracting: NaN/inf outside the mask then reach neither the value
+            # nor the gradient (0 * NaN would poison both).
+            zero = torch.zeros((), dtype=pred.dtype, device=pred.device)
+            diff = (torch.where(mask, pred, zero) - torch.where(mask, target, zero)).abs()
+            count = mask.sum().to(pred.dtype)
+        else:
+            mask = mask.to(pred.dtype)
+            diff = (pred - target).abs() * mask
+            count = mask.sum()
+    if reduction == "sum":
+        return diff.sum()
+    if reduction == "mean":
+        if count is None:
+            return diff.mean()
+        return diff.sum() / count.clamp_min(1e-12)   # nothing selected -> 0, not NaN
+    if reduction == "none":
+        return diff
+    raise ValueError(f"reduction must be 'sum', 'mean' or 'none', got {reduction!r}")
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *,
+                    dtype=torch.float32, device=None) -> torch.Tensor:
+    """Normalised 2D Gaussian window (size x size), the outer product of a 1D Gaussian."""
+    x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2.0
+    g = torch.exp(-(x ** 2) / (2.0 * sigma ** 2))
+    g = g / g.sum()
+    return torch.outer(g, g).to(dtype=dtype, device=device)
+
+
+def _to_nchw(img: torch.Tensor) -> torch.Tensor:
+    if img.dim() == 2:
+        return img[None, None]
+    if img.dim() == 3:
+        return img.permute(2, 0, 1).unsqueeze(0)
+    raise ValueError(f"expected an H x W or H x W x C image, got shape {tuple(img.shape)}")
+
+
+def ssim_map(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
+    """Per-pixel SSIM, 1 x C x H x W (see module doc for the definition)."""
+    if img1.shape != img2.shape:
+        raise ValueError(f"ssim: shapes differ {tuple(img1.shape)} vs {tuple(img2.shape)}")
+    x, y = _to_nchw(img1), _to_nchw(img2)
+    channels = x.shape[1]
+    window = gaussian_window(dtype=x.dtype, device=x.device).expand(channels, 1, SSIM_WINDOW, SSIM_WINDOW)
+    pad = SSIM_WINDOW // 2
+
+    def blur(t):
+        return F.conv2d(t, window, padding=pad, groups=channels)
+
+    mu_x, mu_y = blur(x), blur(y)
+    mu_xx, mu_yy, mu_xy = mu_x * mu_x, mu_y * mu_y, mu_x * mu_y
+    sigma_xx = blur(x * x) - mu_xx
+    sigma_yy = blur(y * y) - mu_yy
+    sigma_xy = blur(x * y) - mu_xy
+    return ((2 * mu_xy + SSIM_C1) * (2 * sigma_xy + SSIM_C2)) / (
+        (mu_xx + mu_yy + SSIM_C1) * (sigma_xx + sigma_yy + SSIM_C2))
+
+
+def ssim(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
+    """Mean SSIM of two H x W x C (or H x W) images: a 0-dim tensor, 1 for identical images.
+    The mapping loss uses 1 - ssim(rendered, observed)."""
+    return ssim_map(img1, img2).mean()

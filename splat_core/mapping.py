@@ -1,0 +1,115 @@
+"""Mapping: optimise the Gaussians over a window of keyframes, and prune.
+
+Each iteration renders one randomly chosen view of the window (current frame, latest keyframe,
+overlapping keyframes) at its frozen pose and minimises
+    L = w_d mean_valid |D - D_hat| + w_c ((1 - w_s) mean |C - C_hat| + w_s (1 - SSIM(C_hat, C)))
+with Adam (per-parameter learning rates, eps 1e-15, fresh every frame). Low-opacity and
+oversized Gaussians are pruned at iterations 0, 20, ... up to `prune_until`.
+
+Only Gaussians near the window's view frusta are optimised: the others receive exactly zero
+gradient, and a freshly created Adam moves nothing with zero gradients, so the result equals
+optimising the whole map while the cost follows the visible part only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from .camera import Intrinsics
+from .config import MappingConfig
+from .gaussians import PARAM_NAMES, GaussianMap
+from .losses import ssim
+from .render import render
+
+
+@dataclass
+class View:
+    """One observation in the mapping window: images as torch tensors on the map's device."""
+
+    color: torch.Tensor   # H x W x 3
+    depth: torch.Tensor   # H x W
+    w2c: np.ndarray       # 4 x 4 (fixed during mapping)
+
+
+def mapping_loss(rendered, view: View, config: MappingConfig):
+    valid = (view.depth > 0).to(view.depth.dtype)
+    depth_l1 = (torch.abs(view.depth - rendered.depth) * valid).sum() / valid.sum().clamp(min=1)
+    color_l1 = torch.abs(view.color - rendered.color).mean()
+    color = (1 - config.ssim_weight) * color_l1 + config.ssim_weight * (1 - ssim(rendered.color, view.color))
+    return config.depth_weight * depth_l1 + config.color_weight * color
+
+
+def prune_mask(m: GaussianMap, config: MappingConfig, scene_radius: float) -> torch.Tensor:
+    """True for Gaussians to keep: not nearly transparent and not larger than a fraction of the scene."""
+    with torch.no_grad():
+        transparent = m.opacities() < config.prune_opacity
+        huge = torch.exp(m.log_scales).amax(dim=1) > config.prune_big_ratio * scene_radius
+    return ~(transparent | huge)
+
+
+def frustum_mask(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics, w2c: np.ndarray,
+                 near: float, margin: float = 0.1) -> torch.Tensor:
+    """Gaussians whose 3.5-sigma footprint may touch the image (plus a margin); conservative."""
+    with torch.no_grad():
+        R = torch.as_tensor(w2c[:3, :3], dtype=means.dtype, device=means.device)
+        t = torch.as_tensor(w2c[:3, 3], dtype=means.dtype, device=means.device)
+        p = means @ R.T + t
+        z = p[:, 2]
+        zs = torch.clamp(z, min=near)
+        extent = 3.5 * torch.exp(log_scales).amax(dim=1)
+        u = intr.fx * p[:, 0] / zs + intr.cx
+        v = intr.fy * p[:, 1] / zs + intr.cy
+        # Off-axis Gaussians project larger (perspective stretch), by at most this factor.
+        stretch = torch.sqrt(1 + (p[:, 0] / zs) ** 2 + (p[:, 1] / zs) ** 2)
+        r_px = extent * max(intr.fx, intr.fy) / zs * stretch + 2.0
+        mx, my = margin * intr.width, margin * intr.height
+        inside = ((u + r_px > -mx) & (u - r_px < intr.width + mx)
+                  & (v + r_px > -my) & (v - r_px < intr.height + my))
+        return (z + extent > near) & inside
+
+
+def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: MappingConfig,
+                 iterations: int, scene_radius: float, rng: np.random.Generator, near: float = 0.01) -> dict:
+    """Run `iterations` mapping steps on `m` in place; returns counts and the last loss."""
+    removed = m.prune(prune_mask(m, config, scene_radius))          # iteration 0's pruning
+    if iterations == 0 or len(m) == 0 or not window:
+        return {"pruned": removed, "loss": None, "optimised": 0}
+
+    if config.visible_only:
+        seen = torch.zeros(len(m), dtype=torch.bool, device=m.device)
+        for view in window:
+            seen |= frustum_mask(m.means.detach(), m.log_scales.detach(), intr, view.w2c, near)
+        index = torch.nonzero(seen).flatten()
+    else:
+        index = torch.arange(len(m), device=m.device)
+    optimised = index.clone()
+    sub = GaussianMap(*(m.params[n].detach()[index] for n in PARAM_NAMES), m.birth_frame[index.cpu()])
+    optimizer = torch.optim.Adam(sub.param_groups(config.lrs), eps=1e-15)
+
+    loss_value = None
+    for i in range(iterations):
+        view = window[int(rng.integers(len(window)))]
+        out = render(sub, intr, view.w2c, near=near)
+        loss = mapping_loss(out, view, config)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        loss_value = float(loss.detach())
+        # Pruning after the step (the original prunes before it and so drops that step's update).
+        if 0 < i + 1 <= config.prune_until and (i + 1) % config.prune_every == 0:
+            keep = prune_mask(sub, config, scene_radius)
+            removed += sub.prune(keep, optimizer)
+            index = index[keep]
+
+    # Write the optimised subset back; Gaussians pruned from the subset leave the map.
+    with torch.no_grad():
+        keep_all = torch.ones(len(m), dtype=torch.bool, device=m.device)
+        keep_all[optimised] = False
+        keep_all[index] = True
+        for name in PARAM_NAMES:
+            m.params[name].data[index] = sub.params[name].detach()
+    m.prune(keep_all)
+    return {"pruned": removed, "loss": loss_value, "optimised": int(optimised.numel())}

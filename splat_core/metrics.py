@@ -1,0 +1,171 @@
+"""Evaluation: trajectory error (ATE), rendering quality (PSNR, SSIM), depth L1.
+
+Every function accepts numpy arrays or torch tensors and returns Python floats (or numpy
+arrays for per-frame values). Conventions (spec §5):
+
+- `ate_rmse` is the standard number (TUM `evaluate_ate`, evo `ape --align`): camera centres,
+  rigid alignment without scale, root-mean-square of the residuals.
+- `ate_mean_legacy` reproduces the official SplaTAM code's "ATE RMSE": translation columns of
+  the w2c matrices, ground truth aligned onto the estimate, MEAN of the errors (spec §5.1, §10.3).
+- `psnr` is 20 log10(1 / sqrt(MSE)) on images in [0, 1], the prediction not clamped.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+def _np(x) -> np.ndarray:
+    if isinstance(x, torch.Tensor):
+        return x.detach().cpu().double().numpy()
+    return np.asarray(x, dtype=np.float64)
+
+
+def _torch(x) -> torch.Tensor:
+    if isinstance(x, torch.Tensor):
+        return x.detach()
+    return torch.as_tensor(np.asarray(x))
+
+
+# ----------------------------------------------------------------------------- trajectories
+
+def align_rigid(src_points, dst_points) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R (3x3) and translation t (3,) minimising sum |R src_i + t - dst_i|^2.
+
+    Closed form (Horn / Kabsch via SVD of the cross-covariance), no scale; the sign of the last
+    singular direction is flipped when needed so that R is a rotation (det +1), never a
+    reflection. src_points, dst_points: N x 3 corresponding points.
+    """
+    src, dst = _np(src_points), _np(dst_points)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3:
+        raise ValueError(f"align_rigid needs two N x 3 arrays, got {src.shape} and {dst.shape}")
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    H = (src - mu_s).T @ (dst - mu_d)           # 3 x 3 cross-covariance
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0])
+    R = Vt.T @ D @ U.T
+    t = mu_d - R @ mu_s
+    return R, t
+
+
+def _valid_pairs(est, ref) -> tuple[np.ndarray, np.ndarray]:
+    est, ref = _np(est), _np(ref)
+    if est.shape != ref.shape or est.ndim != 3 or est.shape[1:] != (4, 4):
+        raise ValueError(f"expected two T x 4 x 4 pose arrays of equal length, got {est.shape} and {ref.shape}")
+    keep = np.all(np.isfinite(ref.reshape(len(ref), -1)), axis=1)
+    return est[keep], ref[keep]
+
+
+def ate_errors(est_c2w, ref_c2w) -> np.ndarray:
+    """Per-frame camera-centre errors (metres) after aligning the ESTIMATE onto the REFERENCE
+    with `align_rigid` (frames whose reference pose is not finite are dropped).
+
+    For a rigid (no-scale) alignment the residual norms are the same whichever trajectory is
+    moved, so this equals aligning the reference onto the estimate. NaN if an estimated pose
+    used is not finite.
+    """
+    est, ref = _valid_pairs(est_c2w, ref_c2w)
+    if len(ref) == 0:
+        return np.zeros(0)
+    p_est, p_ref = est[:, :3, 3], ref[:, :3, 3]
+    if not np.all(np.isfinite(p_est)):
+        return np.full(len(p_est), np.nan)
+    R, t = align_rigid(p_est, p_ref)
+    return np.linalg.norm(p_est @ R.T + t - p_ref, axis=1)
+
+
+def ate_rmse(est_c2w, ref_c2w) -> float:
+    """Absolute trajectory error, metres: RMSE of camera-centre errors after rigid (no-scale)
+    alignment of the estimate onto the reference (same value as aligning the reference onto the
+    estimate), like TUM evaluate_ate / evo `ape --align`. est_c2w, ref_c2w: T x 4 x 4
+    camera-to-world; frames with non-finite reference poses are skipped. NaN when no frame is
+    usable or an estimated pose is not finite."""
+    err = ate_errors(est_c2w, ref_c2w)
+    return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
+
+
+def ate_mean_legacy(est_w2c, ref_w2c) -> float:
+    """The official SplaTAM code's "ATE RMSE" (spec §5.1), metres: the translation COLUMNS of the
+    w2c matrices (not camera centres), the reference aligned onto the estimate (rigid, no scale),
+    then the MEAN of the per-frame errors. Frames with non-finite reference poses are skipped.
+    Since a w2c translation is -R^T c, this number is NOT invariant to translating the world
+    frame of one trajectory; it is meaningful only when both start at the same pose (SplaTAM
+    makes frame 0 the identity in both)."""
+    est, ref = _valid_pairs(est_w2c, ref_w2c)
+    if len(ref) == 0:
+        return float("nan")
+    t_est, t_ref = est[:, :3, 3], ref[:, :3, 3]
+    if not np.all(np.isfinite(t_est)):
+        return float("nan")
+    R, t = align_rigid(t_ref, t_est)
+    return float(np.mean(np.linalg.norm(t_ref @ R.T + t - t_est, axis=1)))
+
+
+def relative_pose_errors(est_c2w, ref_c2w, delta: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Relative pose errors over `delta` frames (TUM RPE): for each i, the error of the motion
+    E_i = (ref_i^-1 ref_{i+delta})^-1 (est_i^-1 est_{i+delta}); returns (translation norms in
+    metres, rotation angles in degrees). Pairs with a non-finite reference pose are skipped.
+    No alignment is needed: relative motions do not depend on the world frame."""
+    est, ref = _np(est_c2w), _np(ref_c2w)
+    if est.shape != ref.shape:
+        raise ValueError(f"pose arrays differ in shape: {est.shape} vs {ref.shape}")
+    trans, rot = [], []
+    for i in range(len(ref) - delta):
+        a, b = ref[i], ref[i + delta]
+        if not (np.all(np.isfinite(a)) and np.all(np.isfinite(b))):
+            continue
+        rel_ref = np.linalg.inv(a) @ b
+        rel_est = np.linalg.inv(est[i]) @ est[i + delta]
+        E = np.linalg.inv(rel_ref) @ rel_est
+        trans.append(np.linalg.norm(E[:3, 3]))
+        rot.append(np.degrees(np.arccos(np.clip((np.trace(E[:3, :3]) - 1) / 2, -1.0, 1.0))))
+    return np.asarray(trans), np.asarray(rot)
+
+
+# ----------------------------------------------------------------------------- images
+
+def psnr(pred, target, mask=None) -> float:
+    """Peak signal-to-noise ratio (dB) for images in [0, 1]: 20 log10(1 / sqrt(MSE)).
+
+    pred, target: same shape (H x W x C or H x W); pred is NOT clamped. mask: optional H x W
+    boolean; the MSE is then the mean over the selected pixels (all channels). inf when equal.
+    """
+    p, t = _np(pred), _np(target)
+    if p.shape != t.shape:
+        raise ValueError(f"psnr: shapes differ {p.shape} vs {t.shape}")
+    sq = (p - t) ** 2
+    if mask is not None:
+        m = _np(mask).astype(bool)
+        sq = sq[m]
+        if sq.size == 0:
+            return float("nan")
+    mse = float(np.mean(sq))
+    if mse == 0.0:
+        return float("inf")
+    return float(20.0 * np.log10(1.0 / np.sqrt(mse)))
+
+
+def ssim_metric(pred, target) -> float:
+    """Mean SSIM (losses.ssim: 11x11 Gaussian window, sigma 1.5) of two H x W x C images.
+    Not the MS-SSIM that the original paper's tables report (spec §10.4)."""
+    from .losses import ssim
+
+    p, t = _torch(pred), _torch(target)
+    if not p.is_floating_point():
+        p = p.float()
+    t = t.to(dtype=p.dtype, device=p.device)
+    with torch.no_grad():
+        return float(ssim(p, t))
+
+
+def depth_l1(pred, target) -> float:
+    """Mean |pred - target| (metres) over pixels with valid target depth (finite and > 0).
+    NaN when no pixel is valid."""
+    p, t = _np(pred), _np(target)
+    if p.shape != t.shape:
+        raise ValueError(f"depth_l1: shapes differ {p.shape} vs {t.shape}")
+    valid = np.isfinite(t) & (t > 0)
+    if not valid.any():
+        return float("nan")
+    return float(np.mean(np.abs(p[valid] - t[valid])))

@@ -1,0 +1,242 @@
+"""The pipeline around the algorithm: reading frames, checkpoints, evaluation, run-folder outputs.
+
+    pipe = Pipeline(open_input(path), load_config("cpu"), out_dir=Path("run"))
+    while pipe.step() is not None: ...
+    metrics = pipe.finish()
+
+Used by `splatam run` (with a progress bar) and by the viewer's worker thread (one step at a
+time, so it can pause). A run folder holds trajectory.txt, map.ply, metrics.json, config.yaml
+and checkpoint/.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import platform
+import resource
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+import yaml
+
+from . import metrics as M
+from .camera import invert_pose, is_finite_pose
+from .config import Config
+from .errors import InputError
+from .frame import Frame, resize_frame
+from .io import checkpoint
+from .io.atomic import write_text_atomic
+from .io.source import FrameSource
+from .render import render
+from .slam import FrameResult, SplaTAM
+
+
+def open_input(path=None, format: str | None = None, **options) -> FrameSource:
+    """A capture (folder or .r3d/.zip, format detected) or, with no path, the synthetic demo scene."""
+    if path is None:
+        from .synthetic import SyntheticSource
+        return SyntheticSource(**options)
+    from .io import open_capture
+    return open_capture(path, format=format, **options)
+
+
+def resolve_device(device: str) -> torch.device:
+    if device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device cuda: no CUDA device is available to torch")
+    if device not in ("cpu", "cuda"):
+        raise InputError(f"--device {device}: expected auto, cpu or cuda")
+    return torch.device(device)
+
+
+def check_frame(frame: Frame, where: str) -> None:
+    if frame.color.shape[:2] != frame.depth.shape:
+        raise InputError(f"{where}: colour {frame.color.shape[:2]} and depth {frame.depth.shape} sizes differ")
+    if not np.all(np.isfinite(frame.depth)):
+        raise InputError(f"{where}: depth has NaN or inf values")
+    if not (frame.depth > 0).any():
+        raise InputError(f"{where}: no valid depth in this frame")
+
+
+class Pipeline:
+    def __init__(self, source: FrameSource, config: Config, out_dir=None, *, device="auto",
+                 max_frames: int | None = None, stride: int = 1, resume: bool = False):
+        if stride < 1:
+            raise InputError(f"--stride {stride}: expected a positive integer")
+        self.source, self.config = source, config
+        self.out_dir = Path(out_dir) if out_dir is not None else None
+        self.device = resolve_device(device)
+        self.indices = list(range(0, len(source), stride))[: max_frames if max_frames else None]
+        if not self.indices:
+            raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
+        self.total = len(self.indices)
+        native = source.intrinsics
+        width, height = config.resolution or (native.width, native.height)
+        self.intrinsics = native.scaled(int(width), int(height))
+        self.slam = SplaTAM(config, self.intrinsics, device=self.device)
+        self.slam.total_frames = self.total
+        self.results: list[FrameResult] = []
+        self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
+        self.references: list[np.ndarray | None] = []
+        self.started = time.perf_counter()
+        if resume:
+            self._resume()
+
+    # ------------------------------------------------------------------ frames
+    def frame(self, k: int) -> Frame:
+        """Processed frame k at the working resolution, depth cut at max_depth."""
+        i = self.indices[k]
+        frame = self.source[i]
+        check_frame(frame, f"{getattr(self.source, 'path', 'input')} frame {i}")
+        frame = resize_frame(frame, self.intrinsics.width, self.intrinsics.height)
+        if self.config.max_depth:
+            frame.depth = np.where(frame.depth <= self.config.max_depth, frame.depth, 0).astype(np.float32)
+        return frame
+
+    def step(self) -> FrameResult | None:
+        k = len(self.records)
+        if k >= self.total:
+            return None
+        frame = self.frame(k)
+        given = None
+        if self.config.tracking.use_reference_poses:
+            ref = self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0])
+            if ref is None:
+                raise InputError(f"frame {frame.index}: tracking.use_reference_poses needs a reference pose")
+            given = invert_pose(ref)
+        result = self.slam.process(frame, given)
+        result.frame = frame
+        self.results.append(result)
+        self.references.append(frame.c2w_ref)
+        self.records.append(dict(
+            index=k, source_index=frame.index, timestamp=frame.timestamp,
+            tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
+            tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
+            num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
+            is_keyframe=result.is_keyframe))
+        every = self.config.checkpoint_every
+        if self.out_dir is not None and every and (k + 1) % every == 0 and k + 1 < self.total:
+            self.save_checkpoint()
+        return result
+
+    # ------------------------------------------------------------------ trajectories
+    @staticmethod
+    def _reference_world(c2w_ref, c2w_ref0):
+        if not (is_finite_pose(c2w_ref) and is_finite_pose(c2w_ref0)):
+            return None
+        return invert_pose(c2w_ref0) @ c2w_ref
+
+    def estimated_c2w(self) -> list[np.ndarray]:
+        return [invert_pose(w) for w in self.slam.w2cs]
+
+    def reference_c2w(self) -> list[np.ndarray | None] | None:
+        """Reference poses in the SLAM world (first frame's camera), or None without any."""
+        if not self.references or not any(is_finite_pose(r) for r in self.references):
+            return None
+        return [self._reference_world(r, self.references[0]) for r in self.references]
+
+    def ate_cm(self) -> float | None:
+        refs = self.reference_c2w()
+        if refs is None:
+            return None
+        pairs = [(e, r) for e, r in zip(self.estimated_c2w(), refs) if r is not None]
+        if len(pairs) < 2:
+            return None
+        est, ref = zip(*pairs)
+        return 100.0 * float(M.ate_rmse(np.array(est), np.array(ref)))
+
+    # ------------------------------------------------------------------ checkpoints
+    def _meta(self) -> dict:
+        return dict(frames_done=len(self.records), total=self.total, indices=self.indices,
+                    records=self.records, references=[None if r is None else np.asarray(r).tolist()
+                                                      for r in self.references],
+                    config=self.config.to_dict(), elapsed_seconds=time.perf_counter() - self.started)
+
+    def save_checkpoint(self) -> None:
+        checkpoint.save(self.out_dir / "checkpoint", self.slam.state_arrays(), self._meta())
+
+    def _resume(self) -> None:
+        if self.out_dir is None or not checkpoint.exists(self.out_dir / "checkpoint"):
+            where = self.out_dir / "checkpoint" if self.out_dir else "--out"
+            raise InputError(f"{where}: nothing to resume (no checkpoint written yet)")
+        ckpt = checkpoint.load(self.out_dir / "checkpoint")
+        if ckpt.meta.get("indices") != self.indices:
+            raise InputError(f"{self.out_dir}: the checkpoint was made with other frames "
+                             "(--input/--stride/--max-frames must match the original run)")
+        if ckpt.meta.get("config") != self.config.to_dict():
+            raise InputError(f"{self.out_dir}: the checkpoint was made with another config")
+        self.slam.load_state_arrays(ckpt.arrays)
+        self.records = list(ckpt.meta["records"])
+        self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
+        self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
+
+    # ------------------------------------------------------------------ results
+    def evaluate(self) -> dict:
+        """Render metrics at the estimated poses on frame 0 and every eval_every-th frame."""
+        every = max(1, self.config.eval_every)
+        picks = [k for k in range(len(self.records)) if k == 0 or (k + 1) % every == 0]
+        psnrs, ssims, depth_l1s = [], [], []
+        g = self.slam.map.tensors(detach=True)
+        for k in picks:
+            frame = self.frame(k)
+            with torch.no_grad():
+                out = render(g, self.intrinsics, self.slam.w2cs[k], near=self.config.near_plane)
+            color = torch.as_tensor(frame.color, device=out.color.device)
+            depth = torch.as_tensor(frame.depth, device=out.depth.device)
+            psnrs.append(float(M.psnr(out.color, color)))
+            ssims.append(float(M.ssim_metric(out.color, color)))
+            depth_l1s.append(float(M.depth_l1(out.depth, depth)))
+        mean = lambda xs: float(np.mean(xs)) if xs else None  # noqa: E731
+        return dict(eval_frames=picks, psnr=mean(psnrs), ssim=mean(ssims),
+                    depth_l1_cm=None if not depth_l1s else 100.0 * mean(depth_l1s))
+
+    def metrics(self) -> dict:
+        track = [r["tracking_seconds"] for r in self.records]
+        mapping = [r["mapping_seconds"] for r in self.records]
+        out = dict(
+            frames=len(self.records), num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
+            ate_rmse_cm=self.ate_cm(),
+            tracking_seconds_per_frame=float(np.mean(track)) if track else None,
+            mapping_seconds_per_frame=float(np.mean(mapping)) if mapping else None,
+            seconds_per_frame=float(np.mean(np.add(track, mapping))) if track else None,
+            peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+            device=str(self.device), machine=platform.processor() or platform.machine(),
+            resolution=[self.intrinsics.width, self.intrinsics.height], config=self.config.name,
+        )
+        refs = self.reference_c2w()
+        if refs is not None:
+            pairs = [(w, invert_pose(r)) for w, r in zip(self.slam.w2cs, refs) if r is not None]
+            if len(pairs) >= 2:
+                est, ref = zip(*pairs)
+                out["ate_mean_legacy_cm"] = 100.0 * float(M.ate_mean_legacy(np.array(est), np.array(ref)))
+        if self.device.type == "cuda":
+            out["peak_gpu_memory_mb"] = torch.cuda.max_memory_allocated() / 2**20
+        out.update(self.evaluate())
+        out["per_frame"] = self.records
+        return out
+
+    def finish(self) -> dict:
+        """Compute metrics and write the run folder (each file atomically)."""
+        from .io.ply import write_ply
+        from .io.trajectory import write_tum_trajectory
+
+        result = self.metrics()
+        if self.out_dir is not None:
+            self.out_dir.mkdir(parents=True, exist_ok=True)
+            stamps = [r["timestamp"] for r in self.records]
+            write_tum_trajectory(self.out_dir / "trajectory.txt", stamps, self.estimated_c2w())
+            write_ply(self.out_dir / "map.ply", self.slam.map.to_numpy())
+            write_text_atomic(self.out_dir / "config.yaml", yaml.safe_dump(self.config.to_dict(), sort_keys=False))
+            write_text_atomic(self.out_dir / "metrics.json", json.dumps(result, indent=1))
+            self.save_checkpoint()
+        return result
+
+
+def config_summary(config: Config) -> str:
+    d = dataclasses.asdict(config)
+    return (f"{config.name}: track {d['tracking']['iterations']} it, map {d['mapping']['iterations']} it, "
+            f"window {d['mapping']['window_size']}, resolution {config.resolution or 'native'}")

@@ -1,0 +1,712 @@
+"""CPU backend: a Numba tile rasterizer with a hand-written backward.
+
+`rasterize_cpu` has the signature and the semantics of `reference.rasterize_reference` (the
+oracle): Gaussians with radius 0 are culled, the rest are composited front to back in a stable
+depth order, pixel (u, v) is evaluated at (u, v), alpha = min(0.99, o exp(power)), contributions
+with power > 0 or alpha < 1/255 are skipped, and compositing stops before the Gaussian that
+would push transmittance below 1e-4.
+
+How it is fast (measurements in ../shared/reference/cpu_rasterizer_notes.md):
+- Binning: each Gaussian covers the pixels where o exp(power) >= 1/255, i.e. the ellipse
+  q(d) = d^T conic d <= K with K = 2 ln(255 o). Its bounding box (slightly enlarged) picks the
+  16 x 16 tiles it touches; a counting sort over the depth-sorted Gaussians gives every tile its
+  list of Gaussians already in front-to-back order.
+- Forward, per tile (prange, dynamic chunks of one tile): Gaussian by Gaussian, only the rows the
+  ellipse covers, and in each row only the x-span solved from the quadratic. Each pixel still
+  composites front to back, and every pixel is tested exactly like the reference, so the
+  enlarged spans only cost a few extra tests and never change results.
+- The forward keeps the final transmittance and the last contributing list position per pixel;
+  the backward walks each tile's list back to front, recovering T_i = T_{i+1} / (1 - a_i).
+- Deterministic gradients without atomics: the backward writes one gradient row per
+  (tile, Gaussian) intersection; a second kernel sums each Gaussian's rows in a fixed order.
+- float32 inputs stay float32 inside the kernels (constants and pixel coordinates are passed in
+  arrays of the input dtype, because Numba promotes float32 op float64-literal to float64).
+
+Numba's parallel runtime must not be entered from two threads at once, so every kernel call
+holds `_KERNEL_LOCK` (the SLAM worker and the viewer both render).
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+
+import numba
+import numpy as np
+import torch
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic, overload
+
+from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
+
+TILE = 16
+# The bounding boxes and row spans solve q(d) <= K * (1 + SPAN_SLACK) + SPAN_SLACK, a little more
+# than the exact cutoff, so that rounding in the span arithmetic never drops a pixel the per-pixel
+# test would keep. The per-pixel test alone decides what is composited.
+SPAN_SLACK = 0.01
+
+_KERNEL_LOCK = threading.Lock()
+
+# Layout of the `consts` array handed to the kernels (in the working dtype).
+(_C_ALPHA_MAX, _C_ALPHA_MIN, _C_T_MIN, _C_HALF, _C_ONE, _C_ZERO, _C_TWO, _C_255, _C_SLACK, _C_WIDTH,
+ _C_HEIGHT) = range(11)
+
+# Layout of the per-Gaussian parameter rows (depth-sorted, live Gaussians only).
+_P_MX, _P_MY, _P_A, _P_B, _P_C, _P_O, _P_K, _P_DET = range(8)
+_P_WIDTH = 8
+
+# Layout of a per-intersection gradient row: means2d (2), conic (3), opacity (1), features (C).
+_G_MX, _G_MY, _G_A, _G_B, _G_C, _G_O = range(6)
+_G_FEAT = 6
+
+last_stats: dict = {}   # what the most recent forward / backward measured (for benchmarks)
+
+
+# ----------------------------------------------------------------------------- kernels
+
+@njit(parallel=True, cache=True)
+def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, consts, params,
+                       boxes, tile_counts):
+    """Per depth-sorted live Gaussian: packed parameters, covered pixel box and tile count.
+
+    boxes[j] = (x0, x1, y0, y1) inclusive pixel bounds; x0 > x1 when nothing can be covered.
+    """
+    half = consts[_C_HALF]
+    one = consts[_C_ONE]
+    zero = consts[_C_ZERO]
+    two = consts[_C_TWO]
+    c255 = consts[_C_255]
+    slack = consts[_C_SLACK]
+    amin = consts[_C_ALPHA_MIN]
+    wf = consts[_C_WIDTH]
+    hf = consts[_C_HEIGHT]
+    for j in prange(order.shape[0]):
+        g = order[j]
+        mx = means2d[g, 0]
+        my = means2d[g, 1]
+        A = conics[g, 0]
+        B = conics[g, 1]
+        C = conics[g, 2]
+        o = opacities[g]
+        params[j, _P_MX] = mx
+        params[j, _P_MY] = my
+        params[j, _P_A] = A
+        params[j, _P_B] = B
+        params[j, _P_C] = C
+        params[j, _P_O] = o
+        boxes[j, 0] = 0
+        boxes[j, 1] = -1
+        boxes[j, 2] = 0
+        boxes[j, 3] = -1
+        tile_counts[j] = 0
+        params[j, _P_K] = zero
+        params[j, _P_DET] = zero
+        # alpha <= o everywhere (exp(power) <= 1 where power <= 0): below 1/255 it never counts.
+        if not (o >= amin):
+            continue
+        det = A * C - B * B
+        K = two * math.log(c255 * o)
+        K = K + K * slack + slack
+        if not (det > zero and A > zero and C > zero and K > zero):
+            continue
+        ex = math.sqrt(K * C / det)   # half-widths of the ellipse's bounding box
+        ey = math.sqrt(K * A / det)
+        xlo = mx - ex
+        xhi = mx + ex
+        ylo = my - ey
+        yhi = my + ey
+        # Clamp in floating point before converting (extents may be huge or infinite; NaN fails).
+        if not (xhi >= zero and xlo <= wf - one and yhi >= zero and ylo <= hf - one):
+            continue
+        if xlo < -one:
+            xlo = -one
+        if ylo < -one:
+            ylo = -one
+        if xhi > wf:
+            xhi = wf
+        if yhi > hf:
+            yhi = hf
+        x0 = max(int(math.ceil(xlo)), 0)
+        x1 = min(int(math.floor(xhi)), width - 1)
+        y0 = max(int(math.ceil(ylo)), 0)
+        y1 = min(int(math.floor(yhi)), height - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        params[j, _P_K] = K
+        params[j, _P_DET] = det
+        boxes[j, 0] = x0
+        boxes[j, 1] = x1
+        boxes[j, 2] = y0
+        boxes[j, 3] = y1
+        tile_counts[j] = (x1 // tile - x0 // tile + 1) * (y1 // tile - y0 // tile + 1)
+
+
+@njit(cache=True)
+def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
+    """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
+
+    Returns tile_offsets (ntiles + 1), isect_gauss (sorted Gaussian index per intersection) and
+    gauss_slots (for each Gaussian, in its own order, the intersections that belong to it).
+    """
+    L = boxes.shape[0]
+    ntiles = ntx * nty
+    n = gauss_offsets[L]
+    tile_offsets = np.zeros(ntiles + 1, dtype=np.int64)
+    for j in range(L):
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+        if x0 > x1:
+            continue
+        for ty in range(y0 // tile, y1 // tile + 1):
+            for tx in range(x0 // tile, x1 // tile + 1):
+                tile_offsets[ty * ntx + tx + 1] += 1
+    for t in range(ntiles):
+        tile_offsets[t + 1] += tile_offsets[t]
+    cursor = tile_offsets[:-1].copy()
+    isect_gauss = np.empty(n, dtype=np.int32)
+    gauss_slots = np.empty(n, dtype=np.int64)
+    for j in range(L):
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+        if x0 > x1:
+            continue
+        m = gauss_offsets[j]
+        for ty in range(y0 // tile, y1 // tile + 1):
+            for tx in range(x0 // tile, x1 // tile + 1):
+                t = ty * ntx + tx
+                pos = cursor[t]
+                cursor[t] = pos + 1
+                isect_gauss[pos] = j
+                gauss_slots[m] = pos
+                m += 1
+    return tile_offsets, isect_gauss, gauss_slots
+
+
+@intrinsic
+def _int_bits_as_float32(typingctx, x):
+    """Reinterpret the low 32 bits of an integer as a float32 (for building 2^n)."""
+    if not isinstance(x, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        v = args[0]
+        if v.type.width != 32:
+            v = builder.trunc(v, ir.IntType(32))
+        return builder.bitcast(v, ir.FloatType())
+
+    return types.float32(x), codegen
+
+
+def _exp(x):
+    return math.exp(x)
+
+
+@overload(_exp, inline="always")
+def _exp_overload(x):
+    """exp that LLVM can vectorise for float32 (libm's expf is a call, which blocks it).
+
+    Range reduction x = n ln2 + r with ln2 split in two parts, a degree-6 polynomial for e^r
+    (the classic Cephes expf coefficients) and 2^n from the exponent bits: about 1 ulp (measured
+    max relative error 8e-8 on [-30, 0]). float64 keeps math.exp (exactness over speed).
+    """
+    if x == types.float32:
+        def impl(x):
+            x = min(max(x, np.float32(-87.0)), np.float32(88.0))
+            n = np.floor(x * np.float32(1.4426950408889634) + np.float32(0.5))
+            r = x - n * np.float32(0.693359375) - n * np.float32(-2.12194440e-4)
+            p = np.float32(1.9875691500e-4)
+            p = p * r + np.float32(1.3981999507e-3)
+            p = p * r + np.float32(8.3334519073e-3)
+            p = p * r + np.float32(4.1665795894e-2)
+            p = p * r + np.float32(1.6666665459e-1)
+            p = p * r + np.float32(5.0000001201e-1)
+            e = p * r * r + r + np.float32(1.0)
+            return e * _int_bits_as_float32((int(n) + 127) << 23)
+        return impl
+    return lambda x: math.exp(x)
+
+
+# Per-tile pixel state of the forward: st[row, field, lane] (one array, so LLVM sees no aliasing).
+_F_T, _F_ACC, _F_ALPHA, _F_LAST, _F_DONE = 0, 1, 5, 6, 7
+_F_N = 8
+# Per-tile pixel state of the backward.
+_B_T, _B_S, _B_TFIN, _B_LAST, _B_GA, _B_GI = 0, 1, 5, 6, 7, 8
+_B_N = 12
+
+
+@njit(parallel=True, cache=True)
+def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
+                    width, height, tile, ntx, image, alpha_out, t_final, last, tile_last):
+    """Front-to-back compositing of one 4-channel feature block, one tile per prange step.
+
+    Within a tile, Gaussian by Gaussian (depth order), over the tile rows its box covers; a row
+    is processed as `tile` lanes without branches so LLVM vectorises it, each lane doing exactly
+    the reference's per-pixel test (and lanes outside the Gaussian's box masked off).
+    Outputs per pixel: image (4 channels), alpha, t_final (transmittance after the last kept
+    Gaussian), last (1 + tile-list position of the last kept Gaussian, 0 if none); per tile:
+    tile_last = max of `last`.
+    """
+    amax = consts[_C_ALPHA_MAX]
+    amin = consts[_C_ALPHA_MIN]
+    tmin = consts[_C_T_MIN]
+    half = consts[_C_HALF]
+    one = consts[_C_ONE]
+    zero = consts[_C_ZERO]
+    nty = (height + tile - 1) // tile
+    dt = params.dtype
+    for t in prange(ntx * nty):
+        ty = t // ntx
+        tx = t - ty * ntx
+        px0 = tx * tile
+        py0 = ty * tile
+        ncols = min(px0 + tile, width) - px0
+        nrows = min(py0 + tile, height) - py0
+        st = np.empty((tile, _F_N, tile), dtype=dt)
+        lx = xs[px0:px0 + tile]
+        rowlive = np.zeros(tile, dtype=np.bool_)
+        for r in range(tile):
+            rowlive[r] = r < nrows
+            for i in range(tile):
+                st[r, _F_T, i] = one
+                for q in range(1, _F_N):
+                    st[r, q, i] = zero
+                if i >= ncols:
+                    st[r, _F_DONE, i] = one    # lanes past the image edge never count
+        start = tile_offsets[t]
+        end = tile_offsets[t + 1]
+        kk = zero                               # 1 + position in the tile list
+        for k in range(start, end):
+            kk += one
+            j = isect_gauss[k]
+            mx = params[j, _P_MX]
+            my = params[j, _P_MY]
+            A = params[j, _P_A]
+            B = params[j, _P_B]
+            C = params[j, _P_C]
+            o = params[j, _P_O]
+            f0 = features[j, 0]
+            f1 = features[j, 1]
+            f2 = features[j, 2]
+            f3 = features[j, 3]
+            xlo = xs[boxes[j, 0]]
+            xhi = xs[boxes[j, 1]]
+            for y in range(max(boxes[j, 2], py0), min(boxes[j, 3], py0 + nrows - 1) + 1):
+                r = y - py0
+                if not rowlive[r]:
+                    continue
+                s = st[r]
+                dy = my - ys[y]
+                for i in range(tile):
+                    xv = lx[i]
+                    dx = mx - xv
+                    power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
+                    a = o * _exp(power)
+                    a = a if a < amax else amax
+                    T = s[_F_T, i]
+                    lastv = s[_F_LAST, i]
+                    donev = s[_F_DONE, i]
+                    tn = T * (one - a)
+                    ok = ((power <= zero) & (a >= amin) & (donev == zero)
+                          & (xv >= xlo) & (xv <= xhi))
+                    keep = ok & (tn >= tmin)
+                    w = a * T if keep else zero
+                    s[_F_ACC, i] += f0 * w
+                    s[_F_ACC + 1, i] += f1 * w
+                    s[_F_ACC + 2, i] += f2 * w
+                    s[_F_ACC + 3, i] += f3 * w
+                    s[_F_ALPHA, i] += w
+                    s[_F_T, i] = tn if keep else T
+                    s[_F_LAST, i] = kk if keep else lastv
+                    s[_F_DONE, i] = one if (ok & (tn < tmin)) else donev
+            if (k - start) % 16 == 15:
+                # Every 16 Gaussians: drop rows whose pixels have all stopped; stop the tile
+                # when none is left. (Counting stops inside the lane loop would block
+                # vectorisation.)
+                any_live = False
+                for r in range(nrows):
+                    if rowlive[r]:
+                        live = False
+                        for i in range(ncols):
+                            if st[r, _F_DONE, i] == zero:
+                                live = True
+                        rowlive[r] = live
+                        any_live = any_live or live
+                if not any_live:
+                    break
+        tl = 0
+        for r in range(nrows):
+            for i in range(ncols):
+                y = py0 + r
+                x = px0 + i
+                t_final[y, x] = st[r, _F_T, i]
+                alpha_out[y, x] = st[r, _F_ALPHA, i]
+                lk = int(st[r, _F_LAST, i])
+                last[y, x] = lk
+                tl = max(tl, lk)
+                for c in range(4):
+                    image[y, x, c] = st[r, _F_ACC + c, i]
+        tile_last[t] = tl
+
+
+@njit(parallel=True, cache=True)
+def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
+                     width, height, tile, ntx, t_final, last, tile_last, grad_image, grad_alpha,
+                     isect_grads):
+    """Back-to-front recursion per tile for one 4-channel block; one gradient row per intersection.
+
+    For a pixel with kept Gaussians i (front to back), T_i = prod_{j<i} (1 - a_j):
+      dOut_c/da_i = T_i f_ic - S_ic / (1 - a_i),  S_ic = sum_{j>i} f_jc a_j T_j
+      dAlpha/da_i = T_final / (1 - a_i)
+      dOut_c/df_ic = a_i T_i
+    and a_i = o G (G = exp(power)) unless clamped at 0.99 (then no gradient to o, power).
+    T_i is recovered from T_{i+1} by division, starting from the stored T_final.
+    Lane-wise sums per Gaussian (gl) are reduced over lanes in a fixed order: deterministic.
+    """
+    amax = consts[_C_ALPHA_MAX]
+    amin = consts[_C_ALPHA_MIN]
+    half = consts[_C_HALF]
+    one = consts[_C_ONE]
+    zero = consts[_C_ZERO]
+    nty = (height + tile - 1) // tile
+    ng = isect_grads.shape[1]
+    dt = params.dtype
+    for t in prange(ntx * nty):
+        ty = t // ntx
+        tx = t - ty * ntx
+        px0 = tx * tile
+        py0 = ty * tile
+        ncols = min(px0 + tile, width) - px0
+        nrows = min(py0 + tile, height) - py0
+        start = tile_offsets[t]
+        end = tile_offsets[t + 1]
+        nk = tile_last[t]
+        for k in range(start + nk, end):
+            for q in range(ng):
+                isect_grads[k, q] = zero
+        if nk == 0:
+            continue
+        st = np.empty((tile, _B_N, tile), dtype=dt)
+        gl = np.zeros((_G_FEAT + 4, tile), dtype=dt)
+        rowlast = np.zeros(tile, dtype=dt)
+        lx = xs[px0:px0 + tile]
+        for r in range(tile):
+            for i in range(tile):
+                for q in range(_B_N):
+                    st[r, q, i] = zero
+                if r < nrows and i < ncols:
+                    y = py0 + r
+                    x = px0 + i
+                    st[r, _B_T, i] = t_final[y, x]
+                    st[r, _B_TFIN, i] = t_final[y, x]
+                    lf = zero + last[y, x]
+                    st[r, _B_LAST, i] = lf
+                    if lf > rowlast[r]:
+                        rowlast[r] = lf
+                    st[r, _B_GA, i] = grad_alpha[y, x]
+                    for c in range(4):
+                        st[r, _B_GI + c, i] = grad_image[y, x, c]
+        kk = zero + nk
+        for k in range(start + nk - 1, start - 1, -1):
+            j = isect_gauss[k]
+            mx = params[j, _P_MX]
+            my = params[j, _P_MY]
+            A = params[j, _P_A]
+            B = params[j, _P_B]
+            C = params[j, _P_C]
+            o = params[j, _P_O]
+            f0 = features[j, 0]
+            f1 = features[j, 1]
+            f2 = features[j, 2]
+            f3 = features[j, 3]
+            xlo = xs[boxes[j, 0]]
+            xhi = xs[boxes[j, 1]]
+            ia = max(boxes[j, 0] - px0, 0)
+            ib = min(boxes[j, 1] - px0, ncols - 1)
+            for q in range(_G_FEAT + 4):
+                for i in range(ia, ib + 1):
+                    gl[q, i] = zero
+            for y in range(max(boxes[j, 2], py0), min(boxes[j, 3], py0 + nrows - 1) + 1):
+                r = y - py0
+                if kk > rowlast[r]:
+                    continue
+                s = st[r]
+                dy = my - ys[y]
+                for i in range(tile):
+                    xv = lx[i]
+                    dx = mx - xv
+                    power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
+                    G = _exp(power)
+                    a0 = o * G
+                    clamped = a0 > amax
+                    a = amax if clamped else a0
+                    ok = ((power <= zero) & (a >= amin) & (kk <= s[_B_LAST, i])
+                          & (xv >= xlo) & (xv <= xhi))
+                    inv = one / (one - a)
+                    Tn = s[_B_T, i]
+                    T = Tn * inv
+                    w = a * T
+                    g0 = s[_B_GI, i]
+                    g1 = s[_B_GI + 1, i]
+                    g2 = s[_B_GI + 2, i]
+                    g3 = s[_B_GI + 3, i]
+                    S0 = s[_B_S, i]
+                    S1 = s[_B_S + 1, i]
+                    S2 = s[_B_S + 2, i]
+                    S3 = s[_B_S + 3, i]
+                    g_a = (s[_B_GA, i] * s[_B_TFIN, i] * inv
+                           + g0 * (T * f0 - S0 * inv) + g1 * (T * f1 - S1 * inv)
+                           + g2 * (T * f2 - S2 * inv) + g3 * (T * f3 - S3 * inv))
+                    s[_B_S, i] = S0 + f0 * w if ok else S0
+                    s[_B_S + 1, i] = S1 + f1 * w if ok else S1
+                    s[_B_S + 2, i] = S2 + f2 * w if ok else S2
+                    s[_B_S + 3, i] = S3 + f3 * w if ok else S3
+                    s[_B_T, i] = T if ok else Tn
+                    wk = w if ok else zero
+                    gl[_G_FEAT, i] += wk * g0
+                    gl[_G_FEAT + 1, i] += wk * g1
+                    gl[_G_FEAT + 2, i] += wk * g2
+                    gl[_G_FEAT + 3, i] += wk * g3
+                    live = ok & (not clamped)
+                    g_pow = g_a * a if live else zero
+                    g_o = g_a * G if live else zero
+                    gl[_G_O, i] += g_o
+                    gl[_G_MX, i] -= g_pow * (A * dx + B * dy)
+                    gl[_G_MY, i] -= g_pow * (C * dy + B * dx)
+                    gl[_G_A, i] -= g_pow * half * dx * dx
+                    gl[_G_B, i] -= g_pow * dx * dy
+                    gl[_G_C, i] -= g_pow * half * dy * dy
+            for q in range(_G_FEAT + 4):
+                acc = zero
+                for i in range(ia, ib + 1):
+                    acc += gl[q, i]
+                isect_grads[k, q] = acc
+            kk -= one
+
+
+@njit(parallel=True, cache=True)
+def _reduce_grads(order, gauss_offsets, gauss_slots, isect_grads, zero, grad_means2d, grad_conics,
+                  grad_opacities, grad_features):
+    """Sum each Gaussian's intersection rows in a fixed order (deterministic, no atomics)."""
+    for j in prange(order.shape[0]):
+        g = order[j]
+        for q in range(_G_FEAT + 4):
+            acc = zero
+            for m in range(gauss_offsets[j], gauss_offsets[j + 1]):
+                acc += isect_grads[gauss_slots[m], q]
+            if q == _G_MX:
+                grad_means2d[g, 0] = acc
+            elif q == _G_MY:
+                grad_means2d[g, 1] = acc
+            elif q == _G_A:
+                grad_conics[g, 0] = acc
+            elif q == _G_B:
+                grad_conics[g, 1] = acc
+            elif q == _G_C:
+                grad_conics[g, 2] = acc
+            elif q == _G_O:
+                grad_opacities[g] = acc
+            else:
+                grad_features[g, q - _G_FEAT] = acc
+
+
+# ----------------------------------------------------------------------------- driver
+
+class _Binned:
+    """Everything the backward needs from the forward (numpy arrays)."""
+
+    __slots__ = ("order", "params", "blocks", "nch", "boxes", "gauss_offsets", "tile_offsets",
+                 "isect_gauss", "gauss_slots", "xs", "ys", "consts", "width", "height", "ntx",
+                 "t_final", "last", "tile_last", "n")
+
+
+def _consts(dtype, width, height) -> np.ndarray:
+    c = np.zeros(11, dtype=dtype)
+    c[_C_ALPHA_MAX] = ALPHA_MAX
+    c[_C_ALPHA_MIN] = ALPHA_MIN
+    c[_C_T_MIN] = T_MIN
+    c[_C_HALF] = 0.5
+    c[_C_ONE] = 1.0
+    c[_C_ZERO] = 0.0
+    c[_C_TWO] = 2.0
+    c[_C_255] = 255.0
+    c[_C_SLACK] = SPAN_SLACK
+    c[_C_WIDTH] = width
+    c[_C_HEIGHT] = height
+    return c
+
+
+def _np(t: torch.Tensor, dtype) -> np.ndarray:
+    tdt = torch.float64 if dtype == np.float64 else torch.float32
+    return np.ascontiguousarray(t.detach().to(device="cpu", dtype=tdt).numpy())
+
+
+def _feature_blocks(features_sorted: np.ndarray) -> list[np.ndarray]:
+    """The kernels composite 4 channels at a time: split (zero-padded) features into blocks."""
+    L, C = features_sorted.shape
+    nb = max(1, -(-C // 4))
+    padded = np.zeros((L, 4 * nb), dtype=features_sorted.dtype)
+    padded[:, :C] = features_sorted
+    return [np.ascontiguousarray(padded[:, 4 * i:4 * i + 4]) for i in range(nb)]
+
+
+def _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats):
+    """Depth sort, per-Gaussian boxes and tile lists (torch in, _Binned out)."""
+    t0 = time.perf_counter()
+    radii_np = radii.detach().cpu().numpy()
+    live = np.flatnonzero(radii_np > 0)
+    depth_np = depths.detach().cpu().numpy()[live]
+    order = live[np.argsort(depth_np, kind="stable")].astype(np.int64)
+    b = _Binned()
+    b.n = means2d.shape[0]
+    b.order = order
+    b.consts = _consts(dtype, width, height)
+    b.width, b.height = int(width), int(height)
+    b.ntx = (b.width + TILE - 1) // TILE
+    nty = (b.height + TILE - 1) // TILE
+    L = order.shape[0]
+    if features is not None:
+        b.nch = features.shape[1]
+        b.blocks = _feature_blocks(_np(features, dtype)[order])
+    t1 = time.perf_counter()
+    b.params = np.empty((L, _P_WIDTH), dtype=dtype)
+    b.boxes = np.empty((L, 4), dtype=np.int64)
+    counts = np.empty(L, dtype=np.int64)
+    _prepare_gaussians(order, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
+                       b.width, b.height, TILE, b.consts, b.params, b.boxes, counts)
+    b.gauss_offsets = np.zeros(L + 1, dtype=np.int64)
+    np.cumsum(counts, out=b.gauss_offsets[1:])
+    b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, b.gauss_offsets, TILE,
+                                                                  b.ntx, nty)
+    # Pixel coordinates in the working dtype, padded to whole tiles (lanes past the edge).
+    b.xs = np.arange(b.ntx * TILE, dtype=dtype)
+    b.ys = np.arange(nty * TILE, dtype=dtype)
+    t2 = time.perf_counter()
+    stats.update(sort_ms=1e3 * (t1 - t0), binning_ms=1e3 * (t2 - t1),
+                 intersections=int(b.gauss_offsets[L]), live=int(L), tiles=b.ntx * nty)
+    return b
+
+
+class _TileChunks:
+    """Dynamic scheduling for the tile kernels: chunks of one tile (tiles are very uneven).
+
+    Set from Python (a `with numba.parallel_chunksize` block inside a cached kernel breaks
+    Numba's cache); only used while `_KERNEL_LOCK` is held, so the setting is not shared.
+    """
+
+    def __enter__(self):
+        self.old = numba.get_parallel_chunksize()
+        numba.set_parallel_chunksize(1)
+
+    def __exit__(self, *exc):
+        numba.set_parallel_chunksize(self.old)
+
+
+def _working_dtype(t: torch.Tensor):
+    return np.float64 if t.dtype == torch.float64 else np.float32
+
+
+def count_intersections(means2d, conics, opacities, radii, width: int, height: int) -> int:
+    """Number of (tile, Gaussian) pairs the CPU rasterizer processes for these inputs."""
+    with _KERNEL_LOCK:
+        b = _bin(means2d, conics, opacities, None, torch.zeros(means2d.shape[0]), radii,
+                 width, height, _working_dtype(means2d), {})
+    return int(b.gauss_offsets[-1])
+
+
+def _forward(means2d, conics, opacities, features, depths, radii, width, height):
+    dtype = _working_dtype(means2d)
+    stats = {}
+    with _KERNEL_LOCK:
+        b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats)
+        H, W = b.height, b.width
+        t0 = time.perf_counter()
+        images = []
+        for i, block in enumerate(b.blocks):
+            image = np.empty((H, W, 4), dtype=dtype)
+            alpha = np.empty((H, W), dtype=dtype)
+            t_final = np.empty((H, W), dtype=dtype)
+            last = np.empty((H, W), dtype=np.int64)
+            tile_last = np.empty(b.tile_offsets.shape[0] - 1, dtype=np.int64)
+            with _TileChunks():
+                _forward_kernel(b.params, block, b.boxes, b.tile_offsets, b.isect_gauss, b.xs,
+                                b.ys, b.consts, W, H, TILE, b.ntx, image, alpha, t_final, last,
+                                tile_last)
+            images.append(image)
+            if i == 0:   # every block composites the same alphas: keep the first block's state
+                b.t_final, b.last, b.tile_last, alpha0 = t_final, last, tile_last, alpha
+        image = images[0] if len(images) == 1 else np.concatenate(images, axis=2)
+        stats["forward_kernel_ms"] = 1e3 * (time.perf_counter() - t0)
+    last_stats.clear()
+    last_stats.update(stats)
+    return np.ascontiguousarray(image[..., :b.nch]), alpha0, b
+
+
+def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
+    dtype = b.params.dtype
+    H, W, C = b.height, b.width, b.nch
+    g_m = np.zeros((b.n, 2), dtype=dtype)
+    g_q = np.zeros((b.n, 3), dtype=dtype)
+    g_o = np.zeros(b.n, dtype=dtype)
+    g_f = np.zeros((b.n, 4 * len(b.blocks)), dtype=dtype)
+    t_kernel = t_reduce = 0.0
+    with _KERNEL_LOCK:
+        for i, block in enumerate(b.blocks):
+            t0 = time.perf_counter()
+            gi = np.zeros((H, W, 4), dtype=dtype)
+            gi[..., :max(0, min(4, C - 4 * i))] = grad_image[..., 4 * i:4 * i + 4]
+            # dAlpha/da enters once, with the first block; the other blocks add colour terms only.
+            ga = grad_alpha if i == 0 else np.zeros_like(grad_alpha)
+            isect_grads = np.empty((b.isect_gauss.shape[0], _G_FEAT + 4), dtype=dtype)
+            with _TileChunks():
+                _backward_kernel(b.params, block, b.boxes, b.tile_offsets, b.isect_gauss, b.xs,
+                                 b.ys, b.consts, W, H, TILE, b.ntx, b.t_final, b.last,
+                                 b.tile_last, gi, ga, isect_grads)
+            t1 = time.perf_counter()
+            bm = np.zeros((b.n, 2), dtype=dtype)
+            bq = np.zeros((b.n, 3), dtype=dtype)
+            bo = np.zeros(b.n, dtype=dtype)
+            bf = np.zeros((b.n, 4), dtype=dtype)
+            _reduce_grads(b.order, b.gauss_offsets, b.gauss_slots, isect_grads, b.consts[_C_ZERO],
+                          bm, bq, bo, bf)
+            g_m += bm
+            g_q += bq
+            g_o += bo
+            g_f[:, 4 * i:4 * i + 4] = bf
+            t_kernel += t1 - t0
+            t_reduce += time.perf_counter() - t1
+    last_stats.update(backward_kernel_ms=1e3 * t_kernel, reduce_ms=1e3 * t_reduce)
+    return g_m, g_q, g_o, np.ascontiguousarray(g_f[:, :C])
+
+
+class _RasterizeCPU(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height):
+        image, alpha, binned = _forward(means2d, conics, opacities, features, depths, radii,
+                                        width, height)
+        ctx.binned = binned
+        ctx.like = (means2d.dtype, means2d.device)
+        dtype, device = ctx.like
+        return (torch.from_numpy(image).to(device, dtype), torch.from_numpy(alpha).to(device, dtype))
+
+    @staticmethod
+    def backward(ctx, grad_image, grad_alpha):
+        b = ctx.binned
+        dtype, device = ctx.like
+        wd = b.params.dtype
+        H, W, C = b.height, b.width, b.nch
+        gi = np.zeros((H, W, C), dtype=wd) if grad_image is None else _np(grad_image, wd)
+        ga = np.zeros((H, W), dtype=wd) if grad_alpha is None else _np(grad_alpha, wd)
+        g = _backward(b, gi, ga)
+        g_m, g_q, g_o, g_f = (torch.from_numpy(x).to(device, dtype) for x in g)
+        return g_m, g_q, g_o, g_f, None, None, None, None
+
+
+def rasterize_cpu(means2d, conics, opacities, features, depths, radii, width, height):
+    """Composite screen-space Gaussians front to back (same contract as `rasterize_reference`).
+
+    means2d N x 2, conics N x 3, opacities N, features N x C, depths N (sort key only), radii N
+    (0 = culled). Returns (H x W x C feature image, H x W accumulated alpha). Differentiable
+    w.r.t. means2d, conics, opacities and features.
+    """
+    return _RasterizeCPU.apply(means2d, conics, opacities, features, depths, radii,
+                               int(width), int(height))

@@ -1,0 +1,218 @@
+"""SplaTAM engine modules on small synthetic scenes (ray-cast, independent of our renderer)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from splat_core.camera import (Intrinsics, backproject, invert_pose, pose_matrix, predict_constant_velocity,
+                               project, quat_to_rotmat_np, rotmat_to_quat)
+from splat_core.config import (DensifyConfig, KeyframeConfig, MappingConfig, TrackingConfig, load_config)
+from splat_core.densify import gaussians_from_pixels, new_pixel_mask
+from splat_core.gaussians import GaussianMap
+from splat_core.keyframes import KeyframeStore, is_keyframe_time, overlap_scores
+from splat_core.mapping import View, frustum_mask, optimise_map, prune_mask
+from splat_core.render import render
+from splat_core.synthetic import SyntheticSource
+from splat_core.tracking import track
+
+
+def small_source(n=12, w=80, h=60, **kw):
+    return SyntheticSource(n_frames=n, width=w, height=h, seed=3, **kw)
+
+
+def map_from_frame(frame, w2c=np.eye(4)):
+    mask = frame.depth > 0
+    return gaussians_from_pixels(frame.color, frame.depth, mask, frame.intrinsics, w2c, 0, DensifyConfig(), True)
+
+
+def rel_w2c(src, i):
+    """Reference w2c of frame i in the world of frame 0 (the SLAM world)."""
+    return invert_pose(invert_pose(src[0].c2w_ref) @ src[i].c2w_ref)
+
+
+# ----------------------------------------------------------------------------- camera conventions
+
+def test_backprojected_pixel_reprojects_onto_itself():
+    intr = Intrinsics(50.0, 52.0, 31.3, 22.7, 64, 48)
+    depth = np.random.default_rng(0).uniform(0.5, 4.0, (48, 64))
+    uv = project(backproject(depth, intr), intr)
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    assert np.allclose(uv[..., 0], u) and np.allclose(uv[..., 1], v)
+
+
+def test_quaternion_round_trip_and_constant_velocity():
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        q *= np.sign(q[0])
+        assert np.allclose(rotmat_to_quat(quat_to_rotmat_np(q)), q, atol=1e-12)
+    step = pose_matrix(quat_to_rotmat_np([0.999, 0.02, -0.03, 0.01]), [0.01, -0.02, 0.005])
+    w0 = pose_matrix(quat_to_rotmat_np([0.9, 0.1, 0.3, -0.2]), [0.3, 0.1, -1.0])
+    w1 = step @ w0
+    assert np.allclose(predict_constant_velocity(w1, w0), step @ w1)
+    assert np.allclose(predict_constant_velocity(w1, None), w1)
+
+
+def test_intrinsics_scaling_keeps_pixel_centres():
+    intr = Intrinsics(100.0, 100.0, 63.5, 47.5, 128, 96)       # exact centre of a 128x96 image
+    half = intr.scaled(64, 48)
+    assert (half.cx, half.cy, half.fx) == (31.5, 23.5, 50.0)
+
+
+# ----------------------------------------------------------------------------- tracking
+
+@pytest.mark.parametrize("shift", [(0.02, -0.01, 0.015)])
+def test_tracking_recovers_a_perturbed_pose(shift):
+    src = small_source(n=2, w=96, h=72)
+    f0 = src[0]
+    m = map_from_frame(f0)
+    truth = np.eye(4)
+    rot = quat_to_rotmat_np(rotmat_to_quat(quat_to_rotmat_np([1.0, 0.006, -0.008, 0.004])))
+    start = pose_matrix(rot, shift)
+    cfg = TrackingConfig(iterations=80, lr_rotation=2e-3, lr_translation=4e-3)
+    out = track(m.tensors(detach=True), torch.as_tensor(f0.color), torch.as_tensor(f0.depth),
+                f0.intrinsics, start, cfg)
+    err0 = np.linalg.norm(start[:3, 3] - truth[:3, 3])
+    err = np.linalg.norm(out.w2c[:3, 3] - truth[:3, 3])
+    assert err < 0.003 < err0
+    assert out.iterations == 80 and out.valid_pixels > 0
+
+
+def test_tracking_keeps_the_best_pose_not_the_last():
+    src = small_source(n=1, w=64, h=48)
+    f0 = src[0]
+    m = map_from_frame(f0)
+    # A huge learning rate makes later steps diverge; the best (initial, exact) pose must be kept.
+    cfg = TrackingConfig(iterations=5, lr_rotation=0.5, lr_translation=0.5)
+    out = track(m.tensors(detach=True), torch.as_tensor(f0.color), torch.as_tensor(f0.depth),
+                f0.intrinsics, np.eye(4), cfg)
+    assert np.allclose(out.w2c, np.eye(4), atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- densification
+
+def test_densify_adds_only_where_the_map_is_empty_or_behind():
+    h, w = 30, 40
+    depth = np.full((h, w), 2.0, np.float32)
+    rendered = np.full((h, w), 2.0, np.float32)
+    sil = np.ones((h, w), np.float32)
+    sil[:, :10] = 0.2                      # empty map on the left
+    rendered[:5, 20:30] = 3.0              # map behind the measurement: new geometry in front
+    rendered[25:, 20:30] = 1.0             # map in front of the measurement: not densified
+    depth[10:12, 30:] = 0.0                # invalid depth never densified
+    sil[10:12, 30:] = 0.0
+    depth_noise = depth + np.random.default_rng(0).normal(0, 1e-4, depth.shape).astype(np.float32) * (depth > 0)
+    mask = new_pixel_mask(depth_noise, rendered, sil, DensifyConfig())
+    expected = np.zeros((h, w), bool)
+    expected[:, :10] = True
+    expected[:5, 20:30] = True
+    assert np.array_equal(mask, expected)
+
+
+def test_new_gaussians_sit_on_back_projected_pixels_with_one_pixel_radius():
+    src = small_source(n=1, w=40, h=30)
+    f = src[0]
+    c2w = pose_matrix(quat_to_rotmat_np([0.98, 0.1, 0.05, -0.1]), [0.2, -0.1, 0.3])
+    mask = f.depth > 0
+    g = gaussians_from_pixels(f.color, f.depth, mask, f.intrinsics, invert_pose(c2w), 7, DensifyConfig(), True)
+    assert len(g) == mask.sum() and set(g.birth_frame.tolist()) == {7}
+    pts_cam = (g.means.detach().double().numpy() - c2w[:3, 3]) @ c2w[:3, :3]
+    uv = project(pts_cam, f.intrinsics)
+    v, u = np.nonzero(mask)
+    assert np.allclose(uv, np.stack([u, v], 1), atol=1e-3)
+    radii = torch.exp(g.log_scales[:, 0]).detach().numpy()
+    assert np.allclose(radii, f.depth[mask] / f.intrinsics.mean_focal, rtol=1e-5)
+    assert np.allclose(torch.sigmoid(g.logit_opacities).detach().numpy(), 0.5)
+
+
+# ----------------------------------------------------------------------------- mapping and pruning
+
+def test_pruning_removes_transparent_and_huge_gaussians_and_keeps_adam_state_aligned():
+    m = GaussianMap.from_points(np.zeros((5, 3)) + [0, 0, 2], np.full((5, 3), 0.5), np.full(5, 0.01), 0)
+    with torch.no_grad():
+        m.logit_opacities[1] = -8.0                     # opacity 3e-4 < 0.005
+        m.log_scales[3] = np.log(0.5)                   # > 0.1 * scene radius 1.0
+    keep = prune_mask(m, MappingConfig(), scene_radius=1.0)
+    assert keep.tolist() == [True, False, True, False, True]
+    opt = torch.optim.Adam(m.param_groups(MappingConfig().lrs))
+    (m.means.sum() + m.colors.sum()).backward()
+    opt.step()
+    marker = opt.state[m.means]["exp_avg"].clone()
+    marker[:, 0] = torch.arange(5.0)
+    opt.state[m.means]["exp_avg"] = marker
+    assert m.prune(keep, opt) == 2
+    assert len(m) == 3 and opt.state[m.means]["exp_avg"][:, 0].tolist() == [0.0, 2.0, 4.0]
+    assert opt.param_groups[0]["params"][0] is m.means
+
+
+def test_mapping_reduces_the_loss_and_leaves_unseen_gaussians_untouched():
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    m = map_from_frame(f)
+    far = GaussianMap.from_points([[0, 0, -5.0]], [[1, 0, 0]], [0.01], 0)   # behind the camera
+    m.append(far)
+    with torch.no_grad():
+        m.colors[:-1] += 0.2                       # spoil the colours
+    view = View(torch.as_tensor(f.color), torch.as_tensor(f.depth), np.eye(4))
+    cfg = MappingConfig()
+    from splat_core.mapping import mapping_loss
+    before = float(mapping_loss(render(m, f.intrinsics, np.eye(4)), view, cfg))
+    far_before = m.means[-1].detach().clone()
+    stats = optimise_map(m, [view], f.intrinsics, cfg, 15, scene_radius=2.0, rng=np.random.default_rng(0))
+    after = float(mapping_loss(render(m, f.intrinsics, np.eye(4)), view, cfg))
+    assert after < 0.8 * before
+    assert torch.equal(m.means[-1].detach(), far_before)
+    assert stats["optimised"] == len(m) - 1
+
+
+def test_frustum_mask_is_conservative():
+    intr = Intrinsics(60, 60, 31.5, 23.5, 64, 48)
+    rng = np.random.default_rng(0)
+    pts = rng.uniform([-3, -3, -1], [3, 3, 4], (3000, 3))
+    g = GaussianMap.from_points(pts, rng.uniform(0, 1, (3000, 3)), rng.uniform(0.005, 0.05, 3000), 0)
+    keep = frustum_mask(g.means.detach(), g.log_scales.detach(), intr, np.eye(4), 0.01)
+    out = render(g, intr, np.eye(4))
+    g.means.grad = None
+    out.color.sum().backward()
+    touched = g.means.grad.abs().sum(1) > 0
+    assert bool((keep | ~touched).all()) and keep.sum() < 3000
+
+
+# ----------------------------------------------------------------------------- keyframes
+
+def test_keyframe_schedule():
+    assert [t for t in range(12) if is_keyframe_time(t, 12, 5)] == [0, 4, 9, 10]
+
+
+def test_overlap_scores_and_window_selection():
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    intr = f.intrinsics
+    turned = pose_matrix(quat_to_rotmat_np([np.cos(0.6), 0, np.sin(0.6), 0]), [0, 0, 0])  # 69 deg yaw
+    behind = pose_matrix(quat_to_rotmat_np([0, 0, 1, 0]), [0, 0, 0])                       # 180 deg
+    store = KeyframeStore(KeyframeConfig(), intr)
+    for i, w2c in enumerate([behind, np.eye(4), turned, behind]):
+        store.add(i, w2c, f.color, f.depth)
+    scores = overlap_scores(f.depth, np.eye(4), intr, store.items[:-1], np.random.default_rng(0))
+    assert scores[1] > 0.9 and 0 < scores[2] < scores[1] and scores[0] == 0
+    window = store.select(f.depth, np.eye(4), k=3, rng=np.random.default_rng(0))
+    assert [kf.frame_index for kf in window] == [1, 2, 3]      # top overlaps, then the latest
+    window = store.select(f.depth, np.eye(4), k=2, rng=np.random.default_rng(0))
+    assert [kf.frame_index for kf in window] == [1, 3]
+
+
+# ----------------------------------------------------------------------------- whole pipeline
+
+def test_slam_on_a_synthetic_sequence_tracks_to_under_a_centimetre():
+    from splat_core.pipeline import Pipeline
+    cfg = load_config("cpu", overrides=dict(resolution=[80, 60], tracking=dict(iterations=40),
+                                            mapping=dict(iterations=8, first_frame_iterations=20)))
+    pipe = Pipeline(small_source(n=8), cfg)
+    while pipe.step() is not None:
+        pass
+    assert pipe.ate_cm() < 1.0
+    assert len(pipe.slam.keyframes) == 3          # frames 0, 4, 6 (second to last)
+    assert len(pipe.slam.map) > 1000

@@ -1,0 +1,44 @@
+"""`splatam info` on the real sequences in ../shared/data (skipped when the folder is absent):
+each reads, has plausible depth units, and its reference poses pass the reprojection check."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+FOLDERS = sorted(p.name for p in DATA.iterdir() if p.is_dir()) if DATA.is_dir() else []
+
+pytestmark = pytest.mark.realdata
+
+
+@pytest.mark.skipif(not FOLDERS, reason=f"real data not found at {DATA}")
+@pytest.mark.parametrize("name", FOLDERS or ["none"])
+def test_info_on_real_sequence(name, capsys):
+    from app.commands.info import format_text, gather
+    from splat_core.io import open_capture
+
+    src = open_capture(DATA / name)
+    assert src.format_name == "tum"
+    info = gather(src)
+    print(format_text(info))
+    assert info["depth"]["units_ok"], info["depth"]
+    assert info["reference_poses"]
+    pc = info["pose_check"]
+    assert pc["ok"] is True, pc
+    assert pc["median_abs_dz_m"] < 0.05  # centimetre-level: the right convention
+    # the usual mistakes would be clearly worse
+    assert min(pc["alternatives"].values()) > pc["median_abs_dz_m"]
+
+
+@pytest.mark.skipif(not (DATA / "7scenes_redkitchen_300").is_dir(), reason="7-Scenes sample absent")
+def test_7scenes_65535_is_invalid():
+    import numpy as np
+
+    from splat_core.io import open_capture
+
+    src = open_capture(DATA / "7scenes_redkitchen_300")
+    for i in range(0, len(src), 30):
+        d = src[i].depth
+        assert np.all(d < 65.0)  # 65535 mm would read as 65.5 m

@@ -1,0 +1,121 @@
+"""Masked L1 and SSIM against hand computations and a slow independent SSIM."""
+
+import numpy as np
+import pytest
+import torch
+
+from splat_core.losses import gaussian_window, l1, ssim, ssim_map
+
+
+def slow_ssim(a: np.ndarray, b: np.ndarray) -> float:
+    """Per-pixel loop: 11x11 Gaussian (sigma 1.5) weighted statistics, pixels outside the image
+    count as 0 (zero padding), C1 = 1e-4, C2 = 9e-4, mean over pixels and channels."""
+    x = np.arange(11) - 5
+    g = np.exp(-x ** 2 / (2 * 1.5 ** 2))
+    g /= g.sum()
+    w = np.outer(g, g)
+    H, W, C = a.shape
+    total = 0.0
+    for c in range(C):
+        for i in range(H):
+            for j in range(W):
+                sx = sy = sxx = syy = sxy = 0.0
+                for di in range(-5, 6):
+                    for dj in range(-5, 6):
+                        ii, jj = i + di, j + dj
+                        if 0 <= ii < H and 0 <= jj < W:
+                            k = w[di + 5, dj + 5]
+                            p, q = a[ii, jj, c], b[ii, jj, c]
+                            sx += k * p
+                            sy += k * q
+                            sxx += k * p * p
+                            syy += k * q * q
+                            sxy += k * p * q
+                vx, vy, cxy = sxx - sx * sx, syy - sy * sy, sxy - sx * sy
+                total += ((2 * sx * sy + 1e-4) * (2 * cxy + 9e-4)) / (
+                    (sx * sx + sy * sy + 1e-4) * (vx + vy + 9e-4))
+    return total / (H * W * C)
+
+
+def test_ssim_matches_slow_reference():
+    rng = np.random.default_rng(0)
+    a = rng.random((9, 13, 2))
+    b = np.clip(a + 0.2 * rng.normal(size=a.shape), 0, 1)
+    got = ssim(torch.tensor(a), torch.tensor(b))
+    assert got.dtype == torch.float64
+    assert float(got) == pytest.approx(slow_ssim(a, b), abs=1e-10)
+    # float32 works too, close to the float64 value.
+    got32 = ssim(torch.tensor(a, dtype=torch.float32), torch.tensor(b, dtype=torch.float32))
+    assert got32.dtype == torch.float32 and float(got32) == pytest.approx(float(got), abs=1e-5)
+
+
+def test_ssim_identity_and_constant_images():
+    x = torch.rand(20, 24, 3, dtype=torch.float64)
+    assert float(ssim(x, x)) == pytest.approx(1.0, abs=1e-12)
+    # Interior of two constant images: variances vanish, SSIM = (2ab + C1) / (a^2 + b^2 + C1).
+    a, b = 0.3, 0.6
+    m = ssim_map(torch.full((30, 30), a, dtype=torch.float64), torch.full((30, 30), b, dtype=torch.float64))
+    assert m.shape == (1, 1, 30, 30)
+    assert float(m[0, 0, 15, 15]) == pytest.approx((2 * a * b + 1e-4) / (a * a + b * b + 1e-4), rel=1e-9)
+    assert float(ssim(torch.rand(16, 16), torch.rand(16, 16))) < 0.5
+
+
+def test_ssim_window():
+    w = gaussian_window(dtype=torch.float64)
+    assert w.shape == (11, 11) and float(w.sum()) == pytest.approx(1.0)
+    assert float(w[5, 5]) == float(w.max()) and torch.allclose(w, w.T)
+    assert float(w[5, 6] / w[5, 5]) == pytest.approx(np.exp(-1 / (2 * 1.5 ** 2)))
+
+
+def test_ssim_gradients_finite():
+    target = torch.rand(16, 20, 3, dtype=torch.float64)
+    for start in (target.clone(), torch.rand(16, 20, 3, dtype=torch.float64), torch.zeros(16, 20, 3, dtype=torch.float64)):
+        x = start.requires_grad_(True)
+        (1 - ssim(x, target)).backward()
+        assert torch.isfinite(x.grad).all()
+    x = torch.rand(6, 7, 2, dtype=torch.float64, requires_grad=True)
+    y = torch.rand(6, 7, 2, dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda t: ssim(t, y), (x,))
+
+
+def test_ssim_rejects_bad_shapes():
+    with pytest.raises(ValueError):
+        ssim(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
+    with pytest.raises(ValueError):
+        ssim(torch.rand(1, 4, 4, 3), torch.rand(1, 4, 4, 3))
+
+
+def test_l1_sum_and_mean_by_hand():
+    pred = torch.tensor([[[0.0, 1.0], [2.0, 3.0]], [[4.0, 5.0], [6.0, 7.0]]])   # 2 x 2 x 2
+    target = torch.zeros(2, 2, 2)
+    assert float(l1(pred, target)) == 28.0
+    assert float(l1(pred, target, reduction="mean")) == 3.5
+    mask = torch.tensor([[True, False], [False, True]])                         # pixels (0,0), (1,1)
+    assert float(l1(pred, target, mask)) == 0 + 1 + 6 + 7
+    assert float(l1(pred, target, mask, reduction="mean")) == 14 / 4
+    assert l1(pred, target, mask, reduction="none").shape == (2, 2, 2)
+    # Float weights.
+    wts = torch.tensor([[1.0, 0.0], [0.0, 0.5]])
+    assert float(l1(pred, target, wts)) == pytest.approx(1 + 6.5)
+    assert float(l1(pred, target, wts, reduction="mean")) == pytest.approx(7.5 / 3)
+    # Depth-style H x W inputs.
+    d = torch.tensor([[1.0, 2.0], [3.0, 0.0]])
+    assert float(l1(d, torch.zeros(2, 2), d > 0, reduction="mean")) == 2.0
+    # Empty mask: 0, not NaN.
+    assert float(l1(pred, target, torch.zeros(2, 2, dtype=torch.bool), reduction="mean")) == 0.0
+    with pytest.raises(ValueError):
+        l1(pred, target, reduction="max")
+
+
+def test_l1_masked_nan_does_not_poison_value_or_gradient():
+    pred = torch.rand(5, 6, 3, dtype=torch.float64, requires_grad=True)
+    target = torch.rand(5, 6, 3, dtype=torch.float64)
+    target[0, 0] = float("nan")
+    mask = torch.ones(5, 6, dtype=torch.bool)
+    mask[0, 0] = False
+    loss = l1(pred, target, mask)
+    loss.backward()
+    assert torch.isfinite(loss) and torch.isfinite(pred.grad).all()
+    assert torch.all(pred.grad[0, 0] == 0)
+    expected = (pred.detach() - target).abs()[mask].sum()
+    assert float(loss.detach()) == pytest.approx(float(expected))

@@ -1,0 +1,253 @@
+"""Viewer without a browser: snapshots, the worker's controls, the scene layout, browse mode,
+and the `export` / `render` / `splatam-viewer` commands."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from app.snapshot import keyframe_buckets
+from app.worker import SlamWorker
+from splat_core.errors import InputError
+from splat_core.io.ply import read_ply, write_ply
+from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
+
+from viewer_helpers import FakePipeline, blob_map, wait_until
+
+
+def test_keyframe_buckets_show_the_map_as_it_was():
+    kf = np.array([0, 3, 7])
+    birth = np.array([0, 0, 1, 3, 4, 7, 8, 9])
+    b = keyframe_buckets(birth, kf)
+    assert b.tolist() == [0, 0, 1, 1, 2, 2, 3, 3]   # (kf_{k-1}, kf_k], tail = 3
+    for k, f in enumerate(kf):                       # buckets 0..k == born up to keyframe k
+        assert ((b <= k) == (birth <= f)).all()
+
+
+def test_worker_publishes_immutable_snapshots(tmp_path):
+    pipe = FakePipeline(total=5, per_frame=20, out_dir=tmp_path)
+    w = SlamWorker(pipe, live_render=False)
+    w.start()
+    snap = w.wait_for(lambda s: s is not None and s.state == "finished", timeout=20)
+    assert snap is not None, w.error
+    assert snap.processed == 5 and snap.total_frames == 5
+    assert snap.num_gaussians == 100
+    assert snap.keyframe_frames.tolist() == [0, 2, 4]
+    assert snap.estimated_c2w.shape == (5, 4, 4) and snap.reference_c2w.shape == (5, 4, 4)
+    assert snap.history["tracking_loss"].shape == (5,)
+    assert snap.gaussians["birth_frame"].tolist() == sorted(snap.gaussians["birth_frame"].tolist())
+    assert snap.keyframes[1].thumbnail.dtype == np.uint8
+    with pytest.raises(ValueError):
+        snap.gaussians["means"][0, 0] = 1.0          # read-only copies
+    pipe.slam.map.params["means"].data[0, 0] = 123.0  # the worker's later edits never leak in
+    assert snap.gaussians["means"][0, 0] != 123.0
+    assert pipe.finished and (tmp_path / "map.ply").is_file()
+    assert len(read_ply(tmp_path / "map.ply")["means"]) == 100
+
+
+def test_worker_pause_step_resume_stop():
+    pipe = FakePipeline(total=200, per_frame=5, frame_seconds=0.02)
+    w = SlamWorker(pipe, live_render=False, start_paused=True)
+    w.start()
+    assert w.wait_for(lambda s: s.state == "paused", 5)
+    time.sleep(0.2)
+    assert w.latest().processed == 0
+    w.step_once()
+    assert w.wait_for(lambda s: s.processed == 1 and s.state == "paused", 5)
+    w.step_once()
+    assert w.wait_for(lambda s: s.processed == 2, 5)
+    time.sleep(0.2)
+    assert w.latest().processed == 2
+    w.resume()
+    assert w.wait_for(lambda s: s.processed >= 6, 5)
+    w.pause()
+    n = w.wait_for(lambda s: s.state == "paused", 5).processed
+    time.sleep(0.2)
+    assert w.latest().processed == n
+    w.resume()
+    assert w.wait_for(lambda s: s.processed > n, 5)
+    w.stop(join_timeout=5)
+    assert not w.is_alive() and w.latest().state == "stopped" and pipe.finished
+
+
+def test_worker_survives_a_failing_pipeline():
+    pipe = FakePipeline(total=5)
+
+    def boom():
+        raise RuntimeError("tracking diverged")
+    pipe.step = boom
+    w = SlamWorker(pipe, live_render=False)
+    w.start()
+    snap = w.wait_for(lambda s: s.state == "error", 5)
+    assert "tracking diverged" in snap.message
+
+
+def test_worker_live_render_with_the_real_renderer():
+    pipe = FakePipeline(total=1, per_frame=200)
+    w = SlamWorker(pipe, live_render=True, render_backend="reference", live_max_width=40)
+    w.start()
+    snap = w.wait_for(lambda s: s.state == "finished", 60)
+    assert snap.live is not None and snap.live.render_color is not None, w.error
+    assert snap.live.render_color.shape == (30, 40, 3)
+    assert snap.live.render_alpha.max() > 0.5         # the patch covers the image centre
+    assert np.isfinite(snap.live.psnr)
+
+
+@pytest.fixture
+def server():
+    import viser
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield s
+    s.stop()
+
+
+def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
+    from app.viewer import build_viewer
+
+    pipe = FakePipeline(total=6, per_frame=50)
+    w = SlamWorker(pipe, live_render=False)
+    app = build_viewer(server, w, export_dir=tmp_path, render_backend="reference", update_hz=20)
+    try:
+        w.start()
+        w.wait_for(lambda s: s.state == "finished", 10)
+        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 10)
+        names = sorted(app.map_layer.node_names)
+        assert names == ["/map/kf_000000", "/map/kf_000002", "/map/kf_000004", "/map/tail"]
+        assert app.map_layer.consolidations >= 1               # the end of the run consolidates
+        assert sorted(app.camera_layer.keyframe_frames) == [0, 2, 4]
+        assert app.panels.keyframe_slider.max == 2 and app.panels.keyframe_slider.value == 2
+        assert "6 / 6" in app.panels.status.content
+        # scrub to the first keyframe: later chunks hidden, keyframe 0 highlighted
+        app.scrub_to(0)
+        nodes = app.map_layer._nodes
+        assert nodes["/map/kf_000000"].visible and not nodes["/map/kf_000002"].visible
+        assert not nodes["/map/tail"].visible
+        assert not app.panels.follow_latest.value
+        wait_until(lambda: "Keyframe 1 / 3" in app.panels.keyframe_info.content and
+                   "PSNR" in app.panels.keyframe_info.content, 30, what="keyframe render")
+        app.scrub_to(None)
+        assert all(h.visible for h in nodes.values())
+        # exports land in the run folder
+        name, content, path = app.export_files("ply")
+        assert name == "map.ply" and path == tmp_path / "map.ply"
+        assert len(read_ply(path)["means"]) == 300
+        name, content, path = app.export_files("trajectory")
+        stamps, c2w = read_tum_trajectory(path)
+        assert len(stamps) == 6 and np.allclose(c2w[3][:3, 3], [0.3, 0, 0])
+    finally:
+        app.close()
+
+
+def make_run(tmp_path, n=400):
+    run = tmp_path / "run"
+    m = blob_map(n, 0)
+    write_ply(run / "map.ply", m.to_numpy())
+    c2w = np.stack([np.eye(4)] * 3)
+    c2w[:, 0, 3] = [0.0, 0.1, 0.2]
+    write_tum_trajectory(run / "trajectory.txt", [0.0, 0.1, 0.2], c2w)
+    return run
+
+
+def test_browse_mode_snapshot(tmp_path):
+    from app.browse import load_run
+
+    run = make_run(tmp_path)
+    snap = load_run(run)
+    assert snap.state == "browse" and snap.num_gaussians == 400 and len(snap.estimated_c2w) == 3
+    assert load_run(run / "map.ply").num_gaussians == 400
+    with pytest.raises(InputError, match="map.ply"):
+        load_run(tmp_path)
+
+
+class CliResult:
+    def __init__(self, returncode, stdout, stderr):
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def run_cli(*argv):
+    """`splatam ARGS` in process (a subprocess would spend seconds importing torch)."""
+    import contextlib
+    import io
+
+    from app.cli import splatam_main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = splatam_main(list(argv))
+    return CliResult(code, out.getvalue(), err.getvalue())
+
+
+def test_export_command(tmp_path):
+    run = make_run(tmp_path)
+    r = run_cli("export", str(run), "--format", "splat", "--out", str(tmp_path / "m.splat"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "m.splat").stat().st_size == 400 * 32
+    r = run_cli("export", str(run), "--out", str(tmp_path / "copy.ply"))
+    assert r.returncode == 0, r.stderr
+    assert len(read_ply(tmp_path / "copy.ply")["means"]) == 400
+    r = run_cli("export", str(tmp_path / "nowhere"), "--format", "ply", "--out", str(tmp_path / "x.ply"))
+    assert r.returncode == 2 and "nowhere" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_render_command(tmp_path):
+    import cv2
+
+    run = make_run(tmp_path)
+    r = run_cli("render", str(run), "--trajectory", str(run / "trajectory.txt"), "--out", str(tmp_path / "img"),
+                "--width", "48", "--height", "36", "--backend", "reference")
+    assert r.returncode == 0, r.stderr
+    files = sorted((tmp_path / "img").glob("*.png"))
+    assert [f.name for f in files] == ["000000.png", "000001.png", "000002.png"]
+    img = cv2.imread(str(files[0]))
+    assert img.shape == (36, 48, 3)
+    assert img[18, 24, 2] > 150 and img[18, 24, 0] < 100        # the red patch, seen head-on (BGR)
+    r = run_cli("render", str(run), "--trajectory", str(run / "trajectory.txt"), "--out", str(tmp_path / "d"),
+                "--mode", "depth", "--width", "32", "--height", "24", "--backend", "reference")
+    assert r.returncode == 0, r.stderr
+    assert len(list((tmp_path / "d").glob("*.png"))) == 3
+
+
+def test_viewer_refuses_a_busy_explicit_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        port = s.getsockname()[1]
+        r = run_cli_viewer("--port", str(port), "--open", "nowhere.ply")
+        assert r.returncode == 2
+    from app.commands.viewer import port_is_free, start_server
+    assert port_is_free("127.0.0.1", port)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(1)
+        with pytest.raises(InputError, match="already in use"):
+            start_server("127.0.0.1", s.getsockname()[1])
+
+
+def run_cli_viewer(*argv, timeout=60):
+    code = "import sys; from app.cli import viewer_main; sys.exit(viewer_main(sys.argv[1:]))"
+    return subprocess.run([sys.executable, "-c", code, *argv], capture_output=True, text=True, timeout=timeout)
+
+
+def test_viewer_cli_open_prints_the_real_port(tmp_path):
+    run = make_run(tmp_path)
+    code = "import sys; from app.cli import viewer_main; sys.exit(viewer_main(sys.argv[1:]))"
+    p = subprocess.Popen([sys.executable, "-c", code, "--open", str(run), "--port", "0"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        url = None
+        while time.monotonic() < deadline and url is None:
+            line = p.stdout.readline()
+            if line.startswith("URL "):
+                url = line.split()[1]
+        assert url and url.startswith("http://127.0.0.1:") and not url.endswith(":0/")
+        import urllib.request
+        assert b"<html" in urllib.request.urlopen(url, timeout=10).read(2000).lower()
+    finally:
+        p.terminate()
+        p.wait(timeout=20)

@@ -1,0 +1,210 @@
+"""The viewer in a real browser: headless Debian Chromium (software WebGL) driven by Playwright
+against an in-process server on port 0 (viser_notes §2.3). Small maps, polling, no sleeps for
+state. Skipped when /usr/bin/chromium or playwright is missing."""
+
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from viewer_helpers import FakePipeline, wait_until
+
+CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
+ARGS = ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
+        "--disable-quic", "--no-first-run", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage"]
+
+pytestmark = [
+    pytest.mark.browser,
+    pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} not installed (apt-get install chromium)"),
+]
+
+
+@pytest.fixture(scope="module")
+def browser():
+    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
+    pw = sync_api.sync_playwright().start()
+    b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+    yield b
+    b.close()
+    pw.stop()
+
+
+@pytest.fixture
+def server():
+    import viser
+    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    yield s
+    s.stop()
+
+
+def connect(browser, server):
+    """A page on the server, connected; returns (page, client, external requests list)."""
+    page = browser.new_page(viewport={"width": 1000, "height": 700}, accept_downloads=True)
+    external, errors = [], []
+    page.on("request", lambda r: external.append(r.url) if not r.url.startswith(
+        ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")) else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"http://127.0.0.1:{server.get_port()}/")
+    page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+    client = wait_until(lambda: next(iter(server.get_clients().values()), None), 60, what="client")
+    wait_until(lambda: client.camera.image_width > 0, 30, what="camera")
+    page.external_requests, page.errors = external, errors
+    return page, client
+
+
+def look(client, position, look_at):
+    with client.atomic():
+        client.camera.up_direction = (0.0, -1.0, 0.0)
+        client.camera.position = position
+        client.camera.look_at = look_at
+
+
+def render(client, h=150, w=200):
+    return np.asarray(client.get_render(h, w, timeout=60), np.int32)
+
+
+def changed_pixels(a, b, threshold=40):
+    return int((np.abs(a[..., :3] - b[..., :3]).sum(axis=-1) > threshold).sum())
+
+
+def count(img, lo, hi):
+    lo, hi = np.asarray(lo), np.asarray(hi)
+    rgb = img[..., :3]
+    return int(np.all((rgb >= lo) & (rgb <= hi), axis=-1).sum())
+
+
+def red(img):
+    return count(img, (150, 0, 0), (255, 90, 90))
+
+
+def green(img):
+    return count(img, (0, 140, 0), (110, 255, 110))
+
+
+def poll_render(client, predicate, timeout=60, what="render"):
+    last = {}
+
+    def attempt():
+        last["img"] = render(client)
+        return predicate(last["img"])
+    try:
+        wait_until(attempt, timeout, interval=0.3, what=what)
+    except AssertionError:
+        import cv2
+        cv2.imwrite(f"/tmp/viewer_test_{what.replace(' ', '_')}.png", last["img"][..., :3][..., ::-1].astype(np.uint8))
+        raise AssertionError(f"{what}: last render red={red(last['img'])} green={green(last['img'])}")
+    return last["img"]
+
+
+def frames_shown(page) -> int:
+    row = page.locator("label", has_text="Frames processed").first.locator("xpath=ancestor::*[.//input][1]")
+    return int(row.locator("input").first.input_value() or 0)
+
+
+def test_live_slam_pause_resume(browser, server, tmp_path):
+    """The real pipeline on a tiny synthetic scene: connect, splats and frustums appear,
+    pause stops the frame counter, resume continues it, the run folder is written."""
+    from app.viewer import build_viewer
+    from app.worker import SlamWorker
+    from splat_core.config import load_config
+    from splat_core.pipeline import Pipeline, open_input
+
+    config = load_config("cpu", {"resolution": [64, 48], "tracking": {"iterations": 4},
+                                 "mapping": {"iterations": 4, "first_frame_iterations": 8}})
+    pipe = Pipeline(open_input(None, n_frames=12, width=64, height=48), config, tmp_path / "run")
+    worker = SlamWorker(pipe, live_max_width=64)
+    app = build_viewer(server, worker, export_dir=tmp_path / "run", novel_full_width=160)
+    try:
+        page, client = connect(browser, server)
+        look(client, (0.0, -0.3, -1.0), (0.0, 0.0, 1.5))
+        empty = render(client)
+        worker.start()
+        # splats: the map drawn from behind the first camera changes many pixels
+        poll_render(client, lambda img: changed_pixels(img, empty) > 2000, 120, "splats")
+        wait_until(lambda: app.camera_layer.keyframe_frames, 60, what="a keyframe frustum")
+        # frustums: hiding /keyframes for this client changes pixels
+        with_frustums = poll_render(client, lambda img: True)
+        shadow = client.scene.add_frame("/keyframes", show_axes=False, visible=False)
+        poll_render(client, lambda img: changed_pixels(img, with_frustums) > 30, 30, "frustums hidden")
+        shadow.remove()
+        # pause stops the frame counter; resume continues it
+        wait_until(lambda: frames_shown(page) >= 1, 120, what="first frames")
+        page.get_by_role("button", name="Pause").click()
+        wait_until(lambda: worker.latest().state == "paused", 60, what="paused")
+        n = worker.latest().processed
+        wait_until(lambda: frames_shown(page) == n, 20, what="counter shows the paused frame")
+        time.sleep(2.0)   # nothing may move while paused (a negative check needs a wait)
+        assert frames_shown(page) == n and worker.latest().processed == n
+        page.get_by_role("button", name="Resume").click()
+        wait_until(lambda: frames_shown(page) > n, 120, what="counter moves after resume")
+        assert page.errors == [] and page.external_requests == []
+        page.close()
+    finally:
+        worker.stop(join_timeout=120)
+        app.close()
+    assert (tmp_path / "run" / "map.ply").is_file() and (tmp_path / "run" / "trajectory.txt").is_file()
+
+
+def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
+    """A scripted run with one colour per frame: the slider shows the map at a keyframe, the
+    novel-view mode sends our render as the background, the PLY download parses."""
+    from app.viewer import build_viewer
+    from app.worker import SlamWorker
+    from splat_core.io.ply import PLY_PROPERTIES, read_ply
+
+    pipe = FakePipeline(total=5, per_frame=2000, keyframe_every=2, out_dir=tmp_path)
+    worker = SlamWorker(pipe, live_render=False)
+    app = build_viewer(server, worker, export_dir=tmp_path, novel_full_width=200, novel_low_width=64)
+    try:
+        worker.start()
+        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 30, what="run end")
+        page, client = connect(browser, server)
+        for name in ("/keyframes", "/trajectory", "/camera"):   # count map colours only
+            client.scene.add_frame(name, show_axes=False, visible=False)
+        look(client, (0.5, 0.0, 0.2), (0.5, 0.0, 2.0))
+        # the whole map: frame 0 red (keyframe 0) and frame 2 green (keyframe 2)
+        poll_render(client, lambda img: red(img) > 150 and green(img) > 150, 90, "full map")
+        # slider to the first keyframe through the page
+        row = page.locator("label", has_text="Keyframe").first.locator("xpath=ancestor::*[.//input][1]")
+        box = row.locator("input.mantine-NumberInput-input")
+        box.fill("0")
+        box.press("Enter")
+        wait_until(lambda: app.panels.keyframe_slider.value == 0, 20, what="slider at 0")
+        assert not app.panels.follow_latest.value
+        # the camera flew to keyframe 0 (the first camera)
+        wait_until(lambda: np.allclose(client.camera.position, 0.0, atol=1e-3), 20, what="camera at keyframe 0")
+        look(client, (0.5, 0.0, 0.2), (0.5, 0.0, 2.0))
+        poll_render(client, lambda img: red(img) > 150 and green(img) < 20, 60, "map at keyframe 0")
+        wait_until(lambda: "Keyframe 1 / 3" in app.panels.keyframe_info.content, 60, what="keyframe panel")
+        # back to the latest map with the checkbox
+        page.get_by_label("Follow latest").check()
+        poll_render(client, lambda img: green(img) > 150, 60, "latest map again")
+        # novel view: our renderer draws the background, WebGL splats hidden for this client
+        view = wait_until(lambda: app.novel_views.get(client.client_id), 10, what="novel view")
+        view.mode_dropdown.value = "Our render: colour"
+        wait_until(lambda: view.frames_sent >= 1, 120, what="a background image")
+        assert view._shadow is not None
+        poll_render(client, lambda img: red(img) > 150 and green(img) > 150, 60, "our render as background")
+        view.mode_dropdown.value = "WebGL splats (fast)"
+        assert view._shadow is None
+        # PLY download
+        with page.expect_download(timeout=60_000) as download:
+            page.get_by_role("button", name="Download map.ply").click()
+        assert download.value.suggested_filename == "map.ply"
+        saved = tmp_path / "downloaded.ply"
+        download.value.save_as(saved)
+        header = saved.read_bytes()[:1000].split(b"end_header")[0].decode()
+        assert "element vertex 10000" in header
+        assert [line.split()[-1] for line in header.splitlines() if line.startswith("property")] == PLY_PROPERTIES
+        assert len(read_ply(saved)["means"]) == 10000
+        assert (tmp_path / "map.ply").is_file()
+        assert page.errors == [] and page.external_requests == []
+        page.close()
+    finally:
+        worker.stop(join_timeout=10)
+        app.close()
