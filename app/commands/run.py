@@ -43,8 +43,9 @@ def main(args) -> int:
     source = open_input(None if args.input == "synthetic" else args.input, format=args.format)
     pipe = Pipeline(source, config, out, device=args.device, max_frames=args.max_frames,
                     stride=args.stride, resume=args.resume)
-    print(f"{source.describe()}\nconfig {config_summary(config)}; device {pipe.device}; "
-          f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}", file=sys.stderr)
+    if not args.quiet:
+        print(f"{source.describe()}\nconfig {config_summary(config)}; device {pipe.device}; "
+              f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}", file=sys.stderr)
     bar = tqdm(total=pipe.total, initial=len(pipe.records), unit="frame", disable=args.quiet,
                dynamic_ncols=True, file=sys.stderr)
     while (r := pipe.step()) is not None:

@@ -66,7 +66,7 @@ last_stats: dict = {}   # what the most recent forward / backward measured (for 
 
 # ----------------------------------------------------------------------------- kernels
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, consts, params,
                        boxes, tile_counts):
     """Per depth-sorted live Gaussian: packed parameters, covered pixel box and tile count.
@@ -143,7 +143,7 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, c
         tile_counts[j] = (x1 // tile - x0 // tile + 1) * (y1 // tile - y0 // tile + 1)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
     """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
 
@@ -234,7 +234,7 @@ _B_T, _B_S, _B_TFIN, _B_LAST, _B_GA, _B_GI = 0, 1, 5, 6, 7, 8
 _B_N = 12
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
                     width, height, tile, ntx, image, alpha_out, t_final, last, tile_last):
     """Front-to-back compositing of one 4-channel feature block, one tile per prange step.
@@ -348,7 +348,7 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
         tile_last[t] = tl
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
                      width, height, tile, ntx, t_final, last, tile_last, grad_image, grad_alpha,
                      isect_grads):
@@ -385,27 +385,29 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
                 isect_grads[k, q] = zero
         if nk == 0:
             continue
-        st = np.empty((tile, _B_N, tile), dtype=dt)
-        gl = np.zeros((_G_FEAT + 4, tile), dtype=dt)
+        # Flat arrays with field offsets that are compile-time multiples of TILE: LLVM then
+        # proves the fields disjoint and vectorises the lane loop (2-D views defeat it).
+        st = np.zeros((TILE, _B_N * TILE), dtype=dt)   # [row][field * TILE + lane]
+        gl = np.zeros((_G_FEAT + 4) * TILE, dtype=dt)   # [field][lane], per Gaussian
         rowlast = np.zeros(tile, dtype=dt)
         lx = xs[px0:px0 + tile]
-        for r in range(tile):
-            for i in range(tile):
-                for q in range(_B_N):
-                    st[r, q, i] = zero
-                if r < nrows and i < ncols:
-                    y = py0 + r
-                    x = px0 + i
-                    st[r, _B_T, i] = t_final[y, x]
-                    st[r, _B_TFIN, i] = t_final[y, x]
-                    lf = zero + last[y, x]
-                    st[r, _B_LAST, i] = lf
-                    if lf > rowlast[r]:
-                        rowlast[r] = lf
-                    st[r, _B_GA, i] = grad_alpha[y, x]
-                    for c in range(4):
-                        st[r, _B_GI + c, i] = grad_image[y, x, c]
-        kk = zero + nk
+        for r in range(nrows):
+            s = st[r]
+            for i in range(ncols):
+                y = py0 + r
+                x = px0 + i
+                s[_B_T * TILE + i] = t_final[y, x]
+                s[_B_TFIN * TILE + i] = t_final[y, x]
+                s[_B_LAST * TILE + i] = last[y, x]     # stored as the working dtype
+                lf = s[_B_LAST * TILE + i]
+                if lf > rowlast[r]:
+                    rowlast[r] = lf
+                s[_B_GA * TILE + i] = grad_alpha[y, x]
+                for c in range(4):
+                    s[(_B_GI + c) * TILE + i] = grad_image[y, x, c]
+        kk = zero
+        for r in range(nrows):
+            kk = max(kk, rowlast[r])   # == tile_last[t] in the working dtype
         for k in range(start + nk - 1, start - 1, -1):
             j = isect_gauss[k]
             mx = params[j, _P_MX]
@@ -424,12 +426,12 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
             ib = min(boxes[j, 1] - px0, ncols - 1)
             for q in range(_G_FEAT + 4):
                 for i in range(ia, ib + 1):
-                    gl[q, i] = zero
+                    gl[q * TILE + i] = zero
             for y in range(max(boxes[j, 2], py0), min(boxes[j, 3], py0 + nrows - 1) + 1):
                 r = y - py0
                 if kk > rowlast[r]:
                     continue
-                s = st[r]
+                s = st[r]   # row view: indices provably >= 0, so no wraparound selects
                 dy = my - ys[y]
                 for i in range(tile):
                     xv = lx[i]
@@ -439,51 +441,50 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
                     a0 = o * G
                     clamped = a0 > amax
                     a = amax if clamped else a0
-                    ok = ((power <= zero) & (a >= amin) & (kk <= s[_B_LAST, i])
+                    ok = ((power <= zero) & (a >= amin) & (kk <= s[_B_LAST * TILE + i])
                           & (xv >= xlo) & (xv <= xhi))
                     inv = one / (one - a)
-                    Tn = s[_B_T, i]
+                    Tn = s[_B_T * TILE + i]
                     T = Tn * inv
                     w = a * T
-                    g0 = s[_B_GI, i]
-                    g1 = s[_B_GI + 1, i]
-                    g2 = s[_B_GI + 2, i]
-                    g3 = s[_B_GI + 3, i]
-                    S0 = s[_B_S, i]
-                    S1 = s[_B_S + 1, i]
-                    S2 = s[_B_S + 2, i]
-                    S3 = s[_B_S + 3, i]
-                    g_a = (s[_B_GA, i] * s[_B_TFIN, i] * inv
+                    g0 = s[_B_GI * TILE + i]
+                    g1 = s[(_B_GI + 1) * TILE + i]
+                    g2 = s[(_B_GI + 2) * TILE + i]
+                    g3 = s[(_B_GI + 3) * TILE + i]
+                    S0 = s[_B_S * TILE + i]
+                    S1 = s[(_B_S + 1) * TILE + i]
+                    S2 = s[(_B_S + 2) * TILE + i]
+                    S3 = s[(_B_S + 3) * TILE + i]
+                    g_a = (s[_B_GA * TILE + i] * s[_B_TFIN * TILE + i] * inv
                            + g0 * (T * f0 - S0 * inv) + g1 * (T * f1 - S1 * inv)
                            + g2 * (T * f2 - S2 * inv) + g3 * (T * f3 - S3 * inv))
-                    s[_B_S, i] = S0 + f0 * w if ok else S0
-                    s[_B_S + 1, i] = S1 + f1 * w if ok else S1
-                    s[_B_S + 2, i] = S2 + f2 * w if ok else S2
-                    s[_B_S + 3, i] = S3 + f3 * w if ok else S3
-                    s[_B_T, i] = T if ok else Tn
+                    s[_B_S * TILE + i] = S0 + f0 * w if ok else S0
+                    s[(_B_S + 1) * TILE + i] = S1 + f1 * w if ok else S1
+                    s[(_B_S + 2) * TILE + i] = S2 + f2 * w if ok else S2
+                    s[(_B_S + 3) * TILE + i] = S3 + f3 * w if ok else S3
+                    s[_B_T * TILE + i] = T if ok else Tn
                     wk = w if ok else zero
-                    gl[_G_FEAT, i] += wk * g0
-                    gl[_G_FEAT + 1, i] += wk * g1
-                    gl[_G_FEAT + 2, i] += wk * g2
-                    gl[_G_FEAT + 3, i] += wk * g3
+                    gl[_G_FEAT * TILE + i] += wk * g0
+                    gl[(_G_FEAT + 1) * TILE + i] += wk * g1
+                    gl[(_G_FEAT + 2) * TILE + i] += wk * g2
+                    gl[(_G_FEAT + 3) * TILE + i] += wk * g3
                     live = ok & (not clamped)
                     g_pow = g_a * a if live else zero
-                    g_o = g_a * G if live else zero
-                    gl[_G_O, i] += g_o
-                    gl[_G_MX, i] -= g_pow * (A * dx + B * dy)
-                    gl[_G_MY, i] -= g_pow * (C * dy + B * dx)
-                    gl[_G_A, i] -= g_pow * half * dx * dx
-                    gl[_G_B, i] -= g_pow * dx * dy
-                    gl[_G_C, i] -= g_pow * half * dy * dy
+                    gl[_G_O * TILE + i] += g_a * G if live else zero
+                    gl[_G_MX * TILE + i] -= g_pow * (A * dx + B * dy)
+                    gl[_G_MY * TILE + i] -= g_pow * (C * dy + B * dx)
+                    gl[_G_A * TILE + i] -= g_pow * half * dx * dx
+                    gl[_G_B * TILE + i] -= g_pow * dx * dy
+                    gl[_G_C * TILE + i] -= g_pow * half * dy * dy
             for q in range(_G_FEAT + 4):
                 acc = zero
                 for i in range(ia, ib + 1):
-                    acc += gl[q, i]
+                    acc += gl[q * TILE + i]
                 isect_grads[k, q] = acc
             kk -= one
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def _reduce_grads(order, gauss_offsets, gauss_slots, isect_grads, zero, grad_means2d, grad_conics,
                   grad_opacities, grad_features):
     """Sum each Gaussian's intersection rows in a fixed order (deterministic, no atomics)."""

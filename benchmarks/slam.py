@@ -1,0 +1,88 @@
+"""SLAM accuracy and speed per preset and sequence; prints JSON (one object per run).
+
+    python benchmarks/slam.py --json                               # synthetic + ../shared/data
+    python benchmarks/slam.py --sequences synthetic --presets cpu --max-frames 20
+
+Each run is a separate `splatam run` process (so peak memory is per run) writing into
+--work (default: a temporary folder); figures come from its metrics.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA = ROOT.parent / "shared" / "data"
+REAL = ["7scenes_redkitchen_300", "sun3d_3dmatch_fragment1", "sun3d_3dmatch_fragment2"]
+
+
+def machine() -> str:
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores"
+
+
+def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str) -> dict:
+    cmd = [sys.executable, "-m", "app.cli", "run", "--input", str(input_path), "--out", str(out),
+           "--config", preset, "--device", device, "--quiet"]
+    if max_frames:
+        cmd += ["--max-frames", str(max_frames)]
+    if out.exists():
+        cmd += ["--resume"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
+    m = json.loads((out / "metrics.json").read_text())
+    keep = ("frames", "ate_rmse_cm", "ate_mean_legacy_cm", "psnr", "ssim", "depth_l1_cm",
+            "tracking_seconds_per_frame", "mapping_seconds_per_frame", "seconds_per_frame",
+            "num_gaussians", "peak_memory_mb", "peak_gpu_memory_mb", "resolution", "device")
+    return {k: m.get(k) for k in keep if k in m}
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sequences", default="synthetic," + ",".join(REAL))
+    p.add_argument("--presets", default="cpu")
+    p.add_argument("--max-frames", type=int, default=None, help="limit every sequence (default: all)")
+    p.add_argument("--device", default="auto")
+    p.add_argument("--work", default=None, help="folder for run outputs (kept; reruns resume)")
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args()
+
+    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="splatam_bench_"))
+    work.mkdir(parents=True, exist_ok=True)
+    results = []
+    for seq in args.sequences.split(","):
+        if seq == "synthetic":
+            path = "synthetic"          # the built-in 60-frame 320x240 scene
+        else:
+            path = DATA / seq
+            if not path.is_dir():
+                results.append({"sequence": seq, "skipped": f"{path} not found"})
+                continue
+        for preset in args.presets.split(","):
+            out = work / f"{seq}__{preset.replace('+', '_')}"
+            row = {"sequence": seq, "preset": preset, **run_one(path, preset, out, args.max_frames, args.device),
+                   "machine": machine(), "run_dir": str(out)}
+            results.append(row)
+            if not args.json:
+                print(json.dumps(row), flush=True)
+    if args.json:
+        print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

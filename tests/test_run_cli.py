@@ -1,0 +1,118 @@
+"""`splatam run`: outputs, resume, and bad input (one line, exit 2, no traceback)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from app.cli import splatam_main
+from splat_core.config import load_config
+from splat_core.io.ply import read_ply
+from splat_core.io.trajectory import read_tum_trajectory
+from splat_core.pipeline import Pipeline, open_input
+from tests.capture_fixtures import write_tum
+
+TINY = """base: cpu
+resolution: [64, 48]
+checkpoint_every: 3
+eval_every: 2
+tracking: {iterations: 6}
+mapping: {iterations: 3, first_frame_iterations: 6, window_size: 4}
+"""
+
+
+@pytest.fixture()
+def capture(tmp_path):
+    write_tum(tmp_path / "cap", n=8)
+    (tmp_path / "tiny.yaml").write_text(TINY)
+    return tmp_path
+
+
+def run_cli(args, capsys):
+    code = splatam_main(args)
+    err = capsys.readouterr().err
+    return code, err
+
+
+def test_run_writes_a_complete_run_folder(capture, capsys):
+    out = capture / "run"
+    code = splatam_main(["run", "--input", str(capture / "cap"), "--out", str(out),
+                         "--config", str(capture / "tiny.yaml"), "--quiet"])
+    assert code == 0
+    stamps, c2w = read_tum_trajectory(out / "trajectory.txt")
+    assert len(stamps) == 8 and np.allclose(c2w[0], np.eye(4), atol=1e-6)
+    ply = read_ply(out / "map.ply")
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert len(ply["means"]) == metrics["num_gaussians"] > 0
+    for key in ("ate_rmse_cm", "psnr", "ssim", "depth_l1_cm", "seconds_per_frame", "peak_memory_mb", "per_frame"):
+        assert metrics[key] is not None, key
+    assert len(metrics["per_frame"]) == 8
+    assert load_config(str(out / "config.yaml")).mapping.iterations == 3
+    assert (out / "checkpoint" / "state.npz").is_file()
+    # A second run into the same folder must not silently overwrite it.
+    code, err = run_cli(["run", "--input", str(capture / "cap"), "--out", str(out), "--quiet"], capsys)
+    assert code == 2 and "--resume" in err
+
+
+def test_resume_equals_an_uninterrupted_run(capture):
+    cfg = load_config(str(capture / "tiny.yaml"))
+    full = Pipeline(open_input(capture / "cap"), cfg, capture / "full")
+    while full.step() is not None:
+        pass
+    full.finish()
+
+    killed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed")
+    for _ in range(5):                     # checkpoint written after frame 3; frames 4-5 are lost
+        killed.step()
+    del killed
+    resumed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed", resume=True)
+    assert len(resumed.records) == 3
+    while resumed.step() is not None:
+        pass
+    resumed.finish()
+    for name in ("trajectory.txt", "map.ply"):
+        assert (capture / "full" / name).read_bytes() == (capture / "resumed" / name).read_bytes(), name
+
+
+def test_resume_refuses_a_different_run(capture, capsys):
+    out = capture / "run"
+    assert splatam_main(["run", "--input", str(capture / "cap"), "--out", str(out),
+                         "--config", str(capture / "tiny.yaml"), "--quiet"]) == 0
+    code, err = run_cli(["run", "--input", str(capture / "cap"), "--out", str(out), "--resume",
+                         "--config", str(capture / "tiny.yaml"), "--stride", "2", "--quiet"], capsys)
+    assert code == 2 and "other frames" in err
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "not_a_capture", "bad_image", "bad_intrinsics",
+                                  "bad_config", "unknown_key"])
+def test_bad_input_is_one_line_and_exit_2(capture, capsys, case):
+    cap, cfg = capture / "cap", capture / "tiny.yaml"
+    if case == "missing":
+        cap = capture / "nope"
+    elif case == "empty":
+        cap = capture / "empty"
+        cap.mkdir()
+    elif case == "not_a_capture":
+        cap = capture / "junk"
+        cap.mkdir()
+        (cap / "notes.txt").write_text("hello")
+    elif case == "bad_image":
+        first = sorted((cap / "rgb").iterdir())[0]
+        first.write_bytes(b"not an image")
+    elif case == "bad_intrinsics":
+        text = (cap / "camera.yaml").read_text()
+        lines = [("fx: -1.0" if line.strip().startswith("fx") else line) for line in text.splitlines()]
+        (cap / "camera.yaml").write_text("\n".join(lines) + "\n")
+    elif case == "bad_config":
+        cfg.write_text("tracking: [unclosed")
+    elif case == "unknown_key":
+        cfg.write_text("base: cpu\ntracking: {iterationz: 3}\n")
+    out = capture / "out"
+    code, err = run_cli(["run", "--input", str(cap), "--out", str(out), "--config", str(cfg), "--quiet"], capsys)
+    assert code == 2
+    lines = [line for line in err.strip().splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith("error: "), err
+    assert "Traceback" not in err
+    assert not (out / "map.ply").exists() and not (out / "metrics.json").exists()
