@@ -218,6 +218,8 @@ def main(argv=None) -> int:
                             f"{k}={v}" for k, v in r["phases_last_run_ms"].items()), flush=True)
     if args.json:
         print(json.dumps(results, indent=1))
+        for s in skipped:
+            print(f"skipped: {s}", file=sys.stderr)
     else:
         print(f"machine: {info}")
         for s in skipped:

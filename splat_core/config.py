@@ -17,7 +17,10 @@ import yaml
 
 from .errors import InputError
 
-CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+# configs/ in a source checkout; shipped as splat_core/presets/ in an installed wheel.
+CONFIG_DIR = next((d for d in (Path(__file__).resolve().parent / "presets",
+                               Path(__file__).resolve().parent.parent / "configs") if d.is_dir()),
+                  Path(__file__).resolve().parent.parent / "configs")
 
 
 @dataclass
@@ -29,6 +32,8 @@ class TrackingConfig:
     depth_weight: float = 1.0
     color_weight: float = 0.5
     resolution_scale: float = 1.0         # track at this fraction of the working resolution
+    coarse_iterations: int = 0            # first this many iterations at coarse_scale (coarse to fine)
+    coarse_scale: float = 0.5
     depth_loss_threshold: float | None = None  # if set: double the iterations once while above (per valid pixel, metres)
     use_reference_poses: bool = False     # skip tracking, use the capture's poses (mapping only)
     compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot

@@ -63,6 +63,9 @@ class KeyframeStore:
     def __len__(self) -> int:
         return len(self.items)
 
+    def __iter__(self):
+        return iter(self.items)
+
     def add(self, frame_index: int, w2c: np.ndarray, color: np.ndarray, depth: np.ndarray) -> Keyframe:
         kf = Keyframe(frame_index, np.array(w2c, dtype=np.float64), np.array(color, dtype=np.float32),
                       np.array(depth, dtype=np.float32))

@@ -154,7 +154,8 @@ class Pipeline:
         return dict(frames_done=len(self.records), total=self.total, indices=self.indices,
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
-                    config=self.config.to_dict(), elapsed_seconds=time.perf_counter() - self.started)
+                    config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
+                    elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
         checkpoint.save(self.out_dir / "checkpoint", self.slam.state_arrays(), self._meta())
@@ -206,6 +207,7 @@ class Pipeline:
             peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             device=str(self.device), machine=platform.processor() or platform.machine(),
             resolution=[self.intrinsics.width, self.intrinsics.height], config=self.config.name,
+            intrinsics=self.intrinsics.to_dict(),
         )
         refs = self.reference_c2w()
         if refs is not None:

@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -113,14 +114,21 @@ class SplaTAM:
 
     # ------------------------------------------------------------------ steps
     def _track(self, color, depth, w2c_init):
-        intr = self.track_intrinsics
-        nearby = frustum_mask(self.map.means.detach(), self.map.log_scales.detach(), intr, w2c_init,
+        """Coarse-to-fine: optional iterations at a lower resolution, then at the tracking resolution."""
+        tc = self.config.tracking
+        nearby = frustum_mask(self.map.means.detach(), self.map.log_scales.detach(), self.intrinsics, w2c_init,
                               self.config.near_plane, margin=0.25)
         g = self.map.tensors(detach=True)
         g = Gaussians(*(x[nearby] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        result = track(g, self._tensor(_resized(color, intr, False)), self._tensor(_resized(depth, intr, True)),
-                       intr, w2c_init, self.config.tracking, near=self.config.near_plane)
-        return result.w2c, result.loss, result.iterations
+        stages = [(self._scaled(tc.coarse_scale), dataclasses.replace(tc, iterations=tc.coarse_iterations))] \
+            if tc.coarse_iterations > 0 else []
+        stages.append((self.track_intrinsics, tc))
+        w2c, loss, iterations = w2c_init, None, 0
+        for intr, stage_config in stages:
+            result = track(g, self._tensor(_resized(color, intr, False)), self._tensor(_resized(depth, intr, True)),
+                           intr, w2c, stage_config, near=self.config.near_plane)
+            w2c, loss, iterations = result.w2c, result.loss, iterations + result.iterations
+        return w2c, loss, iterations
 
     def _densify(self, color, depth, w2c, t) -> int:
         intr = self.densify_intrinsics

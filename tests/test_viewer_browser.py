@@ -116,7 +116,7 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
 
     config = load_config("cpu", {"resolution": [64, 48], "tracking": {"iterations": 4},
                                  "mapping": {"iterations": 4, "first_frame_iterations": 8}})
-    pipe = Pipeline(open_input(None, n_frames=60, width=64, height=48), config, tmp_path / "run")
+    pipe = Pipeline(open_input(None, n_frames=300, width=64, height=48), config, tmp_path / "run")
     worker = SlamWorker(pipe, live_max_width=64)
     app = build_viewer(server, worker, export_dir=tmp_path / "run", novel_full_width=160)
     try:
@@ -124,17 +124,8 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
         look(client, (0.0, -0.3, -1.0), (0.0, 0.0, 1.5))
         empty = render(client)
         worker.start()
-        # splats: the map drawn from behind the first camera changes many pixels
-        poll_render(client, lambda img: changed_pixels(img, empty) > 2000, 120, "splats")
-        wait_until(lambda: app.camera_layer.keyframe_frames, 60, what="a keyframe frustum")
-        # frustums: hiding /keyframes for this client changes pixels
-        with_frustums = poll_render(client, lambda img: True)
-        shadow = client.scene.add_frame("/keyframes", show_axes=False, visible=False)
-        poll_render(client, lambda img: changed_pixels(img, with_frustums) > 30, 30, "frustums hidden")
-        shadow.remove()
         # pause stops the frame counter; resume continues it
         wait_until(lambda: frames_shown(page) >= 1, 120, what="first frames")
-        print("DEBUG", worker.latest().state, worker.latest().message, app.panels.pause_button.disabled, flush=True)
         page.get_by_role("button", name="Pause").click()
         wait_until(lambda: worker.latest().state == "paused", 60, what="paused")
         n = worker.latest().processed
@@ -143,6 +134,14 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
         assert frames_shown(page) == n and worker.latest().processed == n
         page.get_by_role("button", name="Resume").click()
         wait_until(lambda: frames_shown(page) > n, 120, what="counter moves after resume")
+        # splats: the map drawn from behind the first camera changes many pixels
+        poll_render(client, lambda img: changed_pixels(img, empty) > 2000, 120, "splats")
+        wait_until(lambda: app.camera_layer.keyframe_frames, 60, what="a keyframe frustum")
+        # frustums: hiding /keyframes for this client changes pixels
+        with_frustums = poll_render(client, lambda img: True)
+        shadow = client.scene.add_frame("/keyframes", show_axes=False, visible=False)
+        poll_render(client, lambda img: changed_pixels(img, with_frustums) > 30, 30, "frustums hidden")
+        shadow.remove()
         assert page.errors == [] and page.external_requests == []
         page.close()
     finally:

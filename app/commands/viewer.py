@@ -56,6 +56,17 @@ def start_server(host: str, port: int | None):
     return server
 
 
+def _stop_on_sigterm() -> None:
+    """SIGTERM (a service manager, `kill`) shuts down like Ctrl-C: the run folder is still written."""
+    import signal
+    import threading
+
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, handler)
+
+
 def main(args) -> int:
     from app.viewer import StaticSource, build_viewer
 
@@ -97,6 +108,7 @@ def main(args) -> int:
     print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
     if worker is not None:
         worker.start()
+    _stop_on_sigterm()
     announced = False
     try:
         while True:
@@ -109,7 +121,8 @@ def main(args) -> int:
         pass
     finally:
         if worker is not None and worker.is_alive():
-            print("stopping SLAM and writing the run folder…", file=sys.stderr, flush=True)
+            print("stopping SLAM after this frame and writing the run folder (Ctrl-C again to abort)…",
+                  file=sys.stderr, flush=True)
             worker.stop(join_timeout=600)
         app.close()
         server.stop()

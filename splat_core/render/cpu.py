@@ -7,20 +7,27 @@ with power > 0 or alpha < 1/255 are skipped, and compositing stops before the Ga
 would push transmittance below 1e-4.
 
 How it is fast (measurements in ../shared/reference/cpu_rasterizer_notes.md):
-- Binning: each Gaussian covers the pixels where o exp(power) >= 1/255, i.e. the ellipse
-  q(d) = d^T conic d <= K with K = 2 ln(255 o). Its bounding box (slightly enlarged) picks the
-  16 x 16 tiles it touches; a counting sort over the depth-sorted Gaussians gives every tile its
-  list of Gaussians already in front-to-back order.
-- Forward, per tile (prange, dynamic chunks of one tile): Gaussian by Gaussian, only the rows the
-  ellipse covers, and in each row only the x-span solved from the quadratic. Each pixel still
-  composites front to back, and every pixel is tested exactly like the reference, so the
-  enlarged spans only cost a few extra tests and never change results.
+- Binning: a Gaussian can only pass the 1/255 test where q(d) = d^T conic d <= K,
+  K = 2 ln(255 o). The bounding box of that ellipse (K slightly enlarged) picks the 16 x 16 tiles
+  it touches; a counting sort over the depth-sorted Gaussians gives every tile its list of
+  Gaussians already in front-to-back order (ties by index: the sort is stable).
+- Forward, one tile per prange step (dynamic chunks of one tile: tiles are uneven): Gaussian by
+  Gaussian, only over the tile rows of its box and the 8-pixel lane groups of its box. A lane
+  group is a branch-free loop that LLVM vectorises (AVX2: 8 float32 lanes), each lane doing
+  exactly the reference's per-pixel test, so every pixel still composites front to back and the
+  box only saves work. Making that loop vectorise needed: an exp LLVM can inline (`_exp`), flat
+  per-tile state with compile-time field offsets, views so indices are provably >= 0,
+  error_model="numpy" (no zero-division branch) and no "new if cond else old" stores (LLVM emits
+  masked stores for those, which are very slow on AMD).
 - The forward keeps the final transmittance and the last contributing list position per pixel;
   the backward walks each tile's list back to front, recovering T_i = T_{i+1} / (1 - a_i).
 - Deterministic gradients without atomics: the backward writes one gradient row per
   (tile, Gaussian) intersection; a second kernel sums each Gaussian's rows in a fixed order.
 - float32 inputs stay float32 inside the kernels (constants and pixel coordinates are passed in
   arrays of the input dtype, because Numba promotes float32 op float64-literal to float64).
+  float64 inputs run the same kernels in float64 (with libm exp): that is what gradcheck uses.
+- Features are composited 4 channels at a time (RGB + depth in practice); other channel counts
+  are zero-padded and split into blocks of 4.
 
 Numba's parallel runtime must not be entered from two threads at once, so every kernel call
 holds `_KERNEL_LOCK` (the SLAM worker and the viewer both render).
@@ -42,9 +49,11 @@ from numba.extending import intrinsic, overload
 from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 TILE = 16
-# The bounding boxes and row spans solve q(d) <= K * (1 + SPAN_SLACK) + SPAN_SLACK, a little more
-# than the exact cutoff, so that rounding in the span arithmetic never drops a pixel the per-pixel
-# test would keep. The per-pixel test alone decides what is composited.
+LANES = 8        # a tile row is processed as TILE // LANES vectorised groups of LANES pixels
+# The bounding boxes solve q(d) <= K * (1 + SPAN_SLACK) + SPAN_SLACK, a little more than the exact
+# cutoff, so that rounding in the box arithmetic never drops a pixel the per-pixel test would keep.
+# The per-pixel test alone decides what is composited (and lanes outside the box are masked off,
+# identically in forward and backward).
 SPAN_SLACK = 0.01
 
 _KERNEL_LOCK = threading.Lock()
@@ -54,7 +63,7 @@ _KERNEL_LOCK = threading.Lock()
  _C_HEIGHT) = range(11)
 
 # Layout of the per-Gaussian parameter rows (depth-sorted, live Gaussians only).
-_P_MX, _P_MY, _P_A, _P_B, _P_C, _P_O, _P_K, _P_DET = range(8)
+_P_MX, _P_MY, _P_A, _P_B, _P_C, _P_O, _P_K, _P_DET = range(8)   # K, det: box inputs (kept for inspection)
 _P_WIDTH = 8
 
 # Layout of a per-intersection gradient row: means2d (2), conic (3), opacity (1), features (C).
@@ -183,18 +192,22 @@ def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
 
 
 @intrinsic
-def _int_bits_as_float32(typingctx, x):
-    """Reinterpret the low 32 bits of an integer as a float32 (for building 2^n)."""
-    if not isinstance(x, types.Integer):
+def _pow2_float32(typingctx, n):
+    """2**n for an integral-valued float32 n in [-126, 127], from the exponent bits.
+
+    Written as LLVM IR on 32-bit integers: Numba's own int() goes through int64, which AVX2
+    cannot convert in vectors, and that would keep the loop scalar.
+    """
+    if n != types.float32:
         return None
 
     def codegen(context, builder, sig, args):
-        v = args[0]
-        if v.type.width != 32:
-            v = builder.trunc(v, ir.IntType(32))
-        return builder.bitcast(v, ir.FloatType())
+        i32 = ir.IntType(32)
+        k = builder.fptosi(args[0], i32)
+        bits = builder.shl(builder.add(k, ir.Constant(i32, 127)), ir.Constant(i32, 23))
+        return builder.bitcast(bits, ir.FloatType())
 
-    return types.float32(x), codegen
+    return types.float32(types.float32), codegen
 
 
 def _exp(x):
@@ -221,7 +234,7 @@ def _exp_overload(x):
             p = p * r + np.float32(1.6666665459e-1)
             p = p * r + np.float32(5.0000001201e-1)
             e = p * r * r + r + np.float32(1.0)
-            return e * _int_bits_as_float32((int(n) + 127) << 23)
+            return e * _pow2_float32(n)
         return impl
     return lambda x: math.exp(x)
 
@@ -230,18 +243,19 @@ def _exp_overload(x):
 _F_T, _F_ACC, _F_ALPHA, _F_LAST, _F_DONE = 0, 1, 5, 6, 7
 _F_N = 8
 # Per-tile pixel state of the backward.
-_B_T, _B_S, _B_TFIN, _B_LAST, _B_GA, _B_GI = 0, 1, 5, 6, 7, 8
-_B_N = 12
+_B_T, _B_S, _B_GAT, _B_LAST, _B_GI = 0, 1, 5, 6, 7
+_B_N = 11
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
-                    width, height, tile, ntx, image, alpha_out, t_final, last, tile_last):
+                    width, height, lanes, ntx, image, alpha_out, t_final, last, tile_last):
     """Front-to-back compositing of one 4-channel feature block, one tile per prange step.
 
     Within a tile, Gaussian by Gaussian (depth order), over the tile rows its box covers; a row
-    is processed as `tile` lanes without branches so LLVM vectorises it, each lane doing exactly
-    the reference's per-pixel test (and lanes outside the Gaussian's box masked off).
+    is processed in groups of `lanes` (== LANES, passed at run time so LLVM vectorises instead of
+    unrolling) pixels without branches, each lane doing exactly the reference's per-pixel test
+    (and lanes outside the Gaussian's box masked off).
     Outputs per pixel: image (4 channels), alpha, t_final (transmittance after the last kept
     Gaussian), last (1 + tile-list position of the last kept Gaussian, 0 if none); per tile:
     tile_last = max of `last`.
@@ -252,26 +266,24 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
     half = consts[_C_HALF]
     one = consts[_C_ONE]
     zero = consts[_C_ZERO]
-    nty = (height + tile - 1) // tile
+    nty = (height + TILE - 1) // TILE
     dt = params.dtype
     for t in prange(ntx * nty):
         ty = t // ntx
         tx = t - ty * ntx
-        px0 = tx * tile
-        py0 = ty * tile
-        ncols = min(px0 + tile, width) - px0
-        nrows = min(py0 + tile, height) - py0
-        st = np.empty((tile, _F_N, tile), dtype=dt)
-        lx = xs[px0:px0 + tile]
-        rowlive = np.zeros(tile, dtype=np.bool_)
-        for r in range(tile):
+        px0 = tx * TILE
+        py0 = ty * TILE
+        ncols = min(px0 + TILE, width) - px0
+        nrows = min(py0 + TILE, height) - py0
+        st = np.zeros((TILE, _F_N * TILE), dtype=dt)     # [row][field * TILE + lane]
+        lx = xs[px0:px0 + TILE]
+        rowlive = np.zeros(TILE, dtype=np.bool_)
+        for r in range(TILE):
             rowlive[r] = r < nrows
-            for i in range(tile):
-                st[r, _F_T, i] = one
-                for q in range(1, _F_N):
-                    st[r, q, i] = zero
+            for i in range(TILE):
+                st[r, _F_T * TILE + i] = one
                 if i >= ncols:
-                    st[r, _F_DONE, i] = one    # lanes past the image edge never count
+                    st[r, _F_DONE * TILE + i] = one    # lanes past the image edge never count
         start = tile_offsets[t]
         end = tile_offsets[t + 1]
         kk = zero                               # 1 + position in the tile list
@@ -290,34 +302,41 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
             f3 = features[j, 3]
             xlo = xs[boxes[j, 0]]
             xhi = xs[boxes[j, 1]]
+            grp0 = max(boxes[j, 0] - px0, 0) // LANES      # lane groups the box overlaps
+            grp1 = min(boxes[j, 1] - px0, TILE - 1) // LANES
             for y in range(max(boxes[j, 2], py0), min(boxes[j, 3], py0 + nrows - 1) + 1):
                 r = y - py0
                 if not rowlive[r]:
                     continue
-                s = st[r]
                 dy = my - ys[y]
-                for i in range(tile):
-                    xv = lx[i]
-                    dx = mx - xv
-                    power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
-                    a = o * _exp(power)
-                    a = a if a < amax else amax
-                    T = s[_F_T, i]
-                    lastv = s[_F_LAST, i]
-                    donev = s[_F_DONE, i]
-                    tn = T * (one - a)
-                    ok = ((power <= zero) & (a >= amin) & (donev == zero)
-                          & (xv >= xlo) & (xv <= xhi))
-                    keep = ok & (tn >= tmin)
-                    w = a * T if keep else zero
-                    s[_F_ACC, i] += f0 * w
-                    s[_F_ACC + 1, i] += f1 * w
-                    s[_F_ACC + 2, i] += f2 * w
-                    s[_F_ACC + 3, i] += f3 * w
-                    s[_F_ALPHA, i] += w
-                    s[_F_T, i] = tn if keep else T
-                    s[_F_LAST, i] = kk if keep else lastv
-                    s[_F_DONE, i] = one if (ok & (tn < tmin)) else donev
+                for grp in range(grp0, grp1 + 1):
+                    s = st[r][grp * LANES:]
+                    lxv = lx[grp * LANES:]
+                    for i in range(lanes):
+                        xv = lxv[i]
+                        dx = mx - xv
+                        power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
+                        a = o * _exp(power)
+                        a = a if a < amax else amax
+                        T = s[(_F_T) * TILE + i]
+                        lastv = s[(_F_LAST) * TILE + i]
+                        donev = s[(_F_DONE) * TILE + i]
+                        tn = T * (one - a)
+                        ok = ((power <= zero) & (a >= amin) & (donev == zero)
+                              & (xv >= xlo) & (xv <= xhi))
+                        keep = ok & (tn >= tmin)
+                        # Updates are written as arithmetic on selected factors, not as "new if
+                        # keep else old": LLVM turns the latter into masked stores, which are very
+                        # slow on AMD cores. T * 1 == T and last + 0 == last exactly.
+                        w = a * T if keep else zero
+                        s[(_F_ACC) * TILE + i] += f0 * w
+                        s[(_F_ACC + 1) * TILE + i] += f1 * w
+                        s[(_F_ACC + 2) * TILE + i] += f2 * w
+                        s[(_F_ACC + 3) * TILE + i] += f3 * w
+                        s[(_F_ALPHA) * TILE + i] += w
+                        s[(_F_T) * TILE + i] = T * ((one - a) if keep else one)
+                        s[(_F_LAST) * TILE + i] = lastv + ((kk - lastv) if keep else zero)
+                        s[(_F_DONE) * TILE + i] = donev + (one if (ok & (tn < tmin)) else zero)
             if (k - start) % 16 == 15:
                 # Every 16 Gaussians: drop rows whose pixels have all stopped; stop the tile
                 # when none is left. (Counting stops inside the lane loop would block
@@ -327,7 +346,7 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
                     if rowlive[r]:
                         live = False
                         for i in range(ncols):
-                            if st[r, _F_DONE, i] == zero:
+                            if st[r, _F_DONE * TILE + i] == zero:
                                 live = True
                         rowlive[r] = live
                         any_live = any_live or live
@@ -338,19 +357,19 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
             for i in range(ncols):
                 y = py0 + r
                 x = px0 + i
-                t_final[y, x] = st[r, _F_T, i]
-                alpha_out[y, x] = st[r, _F_ALPHA, i]
-                lk = int(st[r, _F_LAST, i])
+                t_final[y, x] = st[r, _F_T * TILE + i]
+                alpha_out[y, x] = st[r, _F_ALPHA * TILE + i]
+                lk = int(st[r, _F_LAST * TILE + i])
                 last[y, x] = lk
                 tl = max(tl, lk)
                 for c in range(4):
-                    image[y, x, c] = st[r, _F_ACC + c, i]
+                    image[y, x, c] = st[r, (_F_ACC + c) * TILE + i]
         tile_last[t] = tl
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
-                     width, height, tile, ntx, t_final, last, tile_last, grad_image, grad_alpha,
+                     width, height, lanes, ntx, t_final, last, tile_last, grad_image, grad_alpha,
                      isect_grads):
     """Back-to-front recursion per tile for one 4-channel block; one gradient row per intersection.
 
@@ -367,16 +386,16 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
     half = consts[_C_HALF]
     one = consts[_C_ONE]
     zero = consts[_C_ZERO]
-    nty = (height + tile - 1) // tile
+    nty = (height + TILE - 1) // TILE
     ng = isect_grads.shape[1]
     dt = params.dtype
     for t in prange(ntx * nty):
         ty = t // ntx
         tx = t - ty * ntx
-        px0 = tx * tile
-        py0 = ty * tile
-        ncols = min(px0 + tile, width) - px0
-        nrows = min(py0 + tile, height) - py0
+        px0 = tx * TILE
+        py0 = ty * TILE
+        ncols = min(px0 + TILE, width) - px0
+        nrows = min(py0 + TILE, height) - py0
         start = tile_offsets[t]
         end = tile_offsets[t + 1]
         nk = tile_last[t]
@@ -389,20 +408,22 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
         # proves the fields disjoint and vectorises the lane loop (2-D views defeat it).
         st = np.zeros((TILE, _B_N * TILE), dtype=dt)   # [row][field * TILE + lane]
         gl = np.zeros((_G_FEAT + 4) * TILE, dtype=dt)   # [field][lane], per Gaussian
-        rowlast = np.zeros(tile, dtype=dt)
-        lx = xs[px0:px0 + tile]
+        rowlast = np.zeros(TILE, dtype=dt)                   # max `last` per row ...
+        grouplast = np.zeros((TILE, TILE // LANES), dtype=dt)  # ... and per lane group
+        lx = xs[px0:px0 + TILE]
         for r in range(nrows):
             s = st[r]
             for i in range(ncols):
                 y = py0 + r
                 x = px0 + i
                 s[_B_T * TILE + i] = t_final[y, x]
-                s[_B_TFIN * TILE + i] = t_final[y, x]
+                s[_B_GAT * TILE + i] = grad_alpha[y, x] * t_final[y, x]   # dL/dAlpha T_final
                 s[_B_LAST * TILE + i] = last[y, x]     # stored as the working dtype
                 lf = s[_B_LAST * TILE + i]
                 if lf > rowlast[r]:
                     rowlast[r] = lf
-                s[_B_GA * TILE + i] = grad_alpha[y, x]
+                if lf > grouplast[r, i // LANES]:
+                    grouplast[r, i // LANES] = lf
                 for c in range(4):
                     s[(_B_GI + c) * TILE + i] = grad_image[y, x, c]
         kk = zero
@@ -424,6 +445,8 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
             xhi = xs[boxes[j, 1]]
             ia = max(boxes[j, 0] - px0, 0)
             ib = min(boxes[j, 1] - px0, ncols - 1)
+            grp0 = ia // LANES                              # lane groups the box overlaps
+            grp1 = min(boxes[j, 1] - px0, TILE - 1) // LANES
             for q in range(_G_FEAT + 4):
                 for i in range(ia, ib + 1):
                     gl[q * TILE + i] = zero
@@ -431,51 +454,59 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
                 r = y - py0
                 if kk > rowlast[r]:
                     continue
-                s = st[r]   # row view: indices provably >= 0, so no wraparound selects
                 dy = my - ys[y]
-                for i in range(tile):
-                    xv = lx[i]
-                    dx = mx - xv
-                    power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
-                    G = _exp(power)
-                    a0 = o * G
-                    clamped = a0 > amax
-                    a = amax if clamped else a0
-                    ok = ((power <= zero) & (a >= amin) & (kk <= s[_B_LAST * TILE + i])
-                          & (xv >= xlo) & (xv <= xhi))
-                    inv = one / (one - a)
-                    Tn = s[_B_T * TILE + i]
-                    T = Tn * inv
-                    w = a * T
-                    g0 = s[_B_GI * TILE + i]
-                    g1 = s[(_B_GI + 1) * TILE + i]
-                    g2 = s[(_B_GI + 2) * TILE + i]
-                    g3 = s[(_B_GI + 3) * TILE + i]
-                    S0 = s[_B_S * TILE + i]
-                    S1 = s[(_B_S + 1) * TILE + i]
-                    S2 = s[(_B_S + 2) * TILE + i]
-                    S3 = s[(_B_S + 3) * TILE + i]
-                    g_a = (s[_B_GA * TILE + i] * s[_B_TFIN * TILE + i] * inv
-                           + g0 * (T * f0 - S0 * inv) + g1 * (T * f1 - S1 * inv)
-                           + g2 * (T * f2 - S2 * inv) + g3 * (T * f3 - S3 * inv))
-                    s[_B_S * TILE + i] = S0 + f0 * w if ok else S0
-                    s[(_B_S + 1) * TILE + i] = S1 + f1 * w if ok else S1
-                    s[(_B_S + 2) * TILE + i] = S2 + f2 * w if ok else S2
-                    s[(_B_S + 3) * TILE + i] = S3 + f3 * w if ok else S3
-                    s[_B_T * TILE + i] = T if ok else Tn
-                    wk = w if ok else zero
-                    gl[_G_FEAT * TILE + i] += wk * g0
-                    gl[(_G_FEAT + 1) * TILE + i] += wk * g1
-                    gl[(_G_FEAT + 2) * TILE + i] += wk * g2
-                    gl[(_G_FEAT + 3) * TILE + i] += wk * g3
-                    live = ok & (not clamped)
-                    g_pow = g_a * a if live else zero
-                    gl[_G_O * TILE + i] += g_a * G if live else zero
-                    gl[_G_MX * TILE + i] -= g_pow * (A * dx + B * dy)
-                    gl[_G_MY * TILE + i] -= g_pow * (C * dy + B * dx)
-                    gl[_G_A * TILE + i] -= g_pow * half * dx * dx
-                    gl[_G_B * TILE + i] -= g_pow * dx * dy
-                    gl[_G_C * TILE + i] -= g_pow * half * dy * dy
+                for grp in range(grp0, grp1 + 1):
+                    if kk > grouplast[r, grp]:
+                        continue
+                    # Views at the group start: indices are provably >= 0 (no wraparound selects)
+                    # and field offsets are compile-time multiples of TILE (no aliasing checks).
+                    s = st[r][grp * LANES:]
+                    glv = gl[grp * LANES:]
+                    lxv = lx[grp * LANES:]
+                    for i in range(lanes):
+                        xv = lxv[i]
+                        dx = mx - xv
+                        power = -half * (A * dx * dx + C * dy * dy) - B * dx * dy
+                        G = _exp(power)
+                        a0 = o * G
+                        clamped = a0 > amax
+                        a = amax if clamped else a0
+                        ok = ((power <= zero) & (a >= amin) & (kk <= s[_B_LAST * TILE + i])
+                              & (xv >= xlo) & (xv <= xhi))
+                        inv = one / (one - a)
+                        Tn = s[_B_T * TILE + i]
+                        T = Tn * inv
+                        w = a * T
+                        g0 = s[_B_GI * TILE + i]
+                        g1 = s[(_B_GI + 1) * TILE + i]
+                        g2 = s[(_B_GI + 2) * TILE + i]
+                        g3 = s[(_B_GI + 3) * TILE + i]
+                        S0 = s[_B_S * TILE + i]
+                        S1 = s[(_B_S + 1) * TILE + i]
+                        S2 = s[(_B_S + 2) * TILE + i]
+                        S3 = s[(_B_S + 3) * TILE + i]
+                        g_a = (s[_B_GAT * TILE + i] * inv
+                               + g0 * (T * f0 - S0 * inv) + g1 * (T * f1 - S1 * inv)
+                               + g2 * (T * f2 - S2 * inv) + g3 * (T * f3 - S3 * inv))
+                        # No "new if ok else old" (masked stores, slow on AMD): add zero / scale by one.
+                        wk = w if ok else zero
+                        s[_B_S * TILE + i] = S0 + f0 * wk
+                        s[(_B_S + 1) * TILE + i] = S1 + f1 * wk
+                        s[(_B_S + 2) * TILE + i] = S2 + f2 * wk
+                        s[(_B_S + 3) * TILE + i] = S3 + f3 * wk
+                        s[_B_T * TILE + i] = Tn * (inv if ok else one)
+                        glv[_G_FEAT * TILE + i] += wk * g0
+                        glv[(_G_FEAT + 1) * TILE + i] += wk * g1
+                        glv[(_G_FEAT + 2) * TILE + i] += wk * g2
+                        glv[(_G_FEAT + 3) * TILE + i] += wk * g3
+                        live = ok & (not clamped)
+                        g_pow = g_a * a if live else zero
+                        glv[_G_O * TILE + i] += g_a * G if live else zero
+                        glv[_G_MX * TILE + i] -= g_pow * (A * dx + B * dy)
+                        glv[_G_MY * TILE + i] -= g_pow * (C * dy + B * dx)
+                        glv[_G_A * TILE + i] -= g_pow * half * dx * dx
+                        glv[_G_B * TILE + i] -= g_pow * dx * dy
+                        glv[_G_C * TILE + i] -= g_pow * half * dy * dy
             for q in range(_G_FEAT + 4):
                 acc = zero
                 for i in range(ia, ib + 1):
@@ -489,25 +520,30 @@ def _reduce_grads(order, gauss_offsets, gauss_slots, isect_grads, zero, grad_mea
                   grad_opacities, grad_features):
     """Sum each Gaussian's intersection rows in a fixed order (deterministic, no atomics)."""
     for j in prange(order.shape[0]):
+        a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = zero
+        for m in range(gauss_offsets[j], gauss_offsets[j + 1]):
+            row = isect_grads[gauss_slots[m]]
+            a0 += row[_G_MX]
+            a1 += row[_G_MY]
+            a2 += row[_G_A]
+            a3 += row[_G_B]
+            a4 += row[_G_C]
+            a5 += row[_G_O]
+            a6 += row[_G_FEAT]
+            a7 += row[_G_FEAT + 1]
+            a8 += row[_G_FEAT + 2]
+            a9 += row[_G_FEAT + 3]
         g = order[j]
-        for q in range(_G_FEAT + 4):
-            acc = zero
-            for m in range(gauss_offsets[j], gauss_offsets[j + 1]):
-                acc += isect_grads[gauss_slots[m], q]
-            if q == _G_MX:
-                grad_means2d[g, 0] = acc
-            elif q == _G_MY:
-                grad_means2d[g, 1] = acc
-            elif q == _G_A:
-                grad_conics[g, 0] = acc
-            elif q == _G_B:
-                grad_conics[g, 1] = acc
-            elif q == _G_C:
-                grad_conics[g, 2] = acc
-            elif q == _G_O:
-                grad_opacities[g] = acc
-            else:
-                grad_features[g, q - _G_FEAT] = acc
+        grad_means2d[g, 0] = a0
+        grad_means2d[g, 1] = a1
+        grad_conics[g, 0] = a2
+        grad_conics[g, 1] = a3
+        grad_conics[g, 2] = a4
+        grad_opacities[g] = a5
+        grad_features[g, 0] = a6
+        grad_features[g, 1] = a7
+        grad_features[g, 2] = a8
+        grad_features[g, 3] = a9
 
 
 # ----------------------------------------------------------------------------- driver
@@ -556,7 +592,12 @@ def _bin(means2d, conics, opacities, features, depths, radii, width, height, dty
     radii_np = radii.detach().cpu().numpy()
     live = np.flatnonzero(radii_np > 0)
     depth_np = depths.detach().cpu().numpy()[live]
-    order = live[np.argsort(depth_np, kind="stable")].astype(np.int64)
+    key = depth_np
+    if depth_np.dtype in (np.float32, np.float64) and bool((depth_np > 0).all()):
+        # Positive IEEE floats sort like their bit patterns read as integers, and numpy's
+        # stable integer sort is faster than its float one (same order, ties by index).
+        key = depth_np.view(np.int32 if depth_np.dtype == np.float32 else np.int64)
+    order = live[np.argsort(key, kind="stable")].astype(np.int64)
     b = _Binned()
     b.n = means2d.shape[0]
     b.order = order
@@ -630,7 +671,7 @@ def _forward(means2d, conics, opacities, features, depths, radii, width, height)
             tile_last = np.empty(b.tile_offsets.shape[0] - 1, dtype=np.int64)
             with _TileChunks():
                 _forward_kernel(b.params, block, b.boxes, b.tile_offsets, b.isect_gauss, b.xs,
-                                b.ys, b.consts, W, H, TILE, b.ntx, image, alpha, t_final, last,
+                                b.ys, b.consts, W, H, LANES, b.ntx, image, alpha, t_final, last,
                                 tile_last)
             images.append(image)
             if i == 0:   # every block composites the same alphas: keep the first block's state
@@ -660,7 +701,7 @@ def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
             isect_grads = np.empty((b.isect_gauss.shape[0], _G_FEAT + 4), dtype=dtype)
             with _TileChunks():
                 _backward_kernel(b.params, block, b.boxes, b.tile_offsets, b.isect_gauss, b.xs,
-                                 b.ys, b.consts, W, H, TILE, b.ntx, b.t_final, b.last,
+                                 b.ys, b.consts, W, H, LANES, b.ntx, b.t_final, b.last,
                                  b.tile_last, gi, ga, isect_grads)
             t1 = time.perf_counter()
             bm = np.zeros((b.n, 2), dtype=dtype)

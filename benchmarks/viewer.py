@@ -1,0 +1,166 @@
+"""Viewer costs: server-side map updates as the map grows, and time to first splats in a browser.
+
+    python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
+
+Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
+map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on every chunk),
+and adding one new 5k-Gaussian keyframe chunk.
+Client side: headless Debian Chromium with SOFTWARE WebGL (SwiftShader), measured by polling
+client.get_render until the splats show. These figures are worst cases that say nothing about
+a real GPU; sizes above --client-sizes are skipped because SwiftShader needs minutes there.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from app.snapshot import KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
+from app.viewer_scene import MapLayer  # noqa: E402
+from splat_core.gaussians import GaussianMap  # noqa: E402
+
+CHROMIUM = "/usr/bin/chromium"
+
+
+def synthetic_map(n: int, keyframes: int, seed: int = 0) -> GaussianMap:
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform([-2, -1, 1], [2, 1, 4], (n, 3))
+    m = GaussianMap.from_points(pts, rng.uniform(0, 1, (n, 3)), rng.uniform(0.005, 0.03, n), 0)
+    m.birth_frame = np.sort(rng.integers(0, keyframes * 5, n))
+    import torch
+    m.birth_frame = torch.as_tensor(m.birth_frame)
+    return m
+
+
+def snapshot_of(arrays: dict, keyframe_frames, version: int = 1) -> MapSnapshot:
+    kfs = tuple(KeyframeView(int(f), np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in keyframe_frames)
+    return MapSnapshot(version=version, state="running", frame_index=int(max(keyframe_frames)),
+                       total_frames=int(max(keyframe_frames)) + 1, map_version=version,
+                       gaussians=arrays, keyframes=kfs)
+
+
+def timed(fn, repeat: int = 3) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def server_side(n: int) -> dict:
+    import viser
+
+    K = 20
+    m = synthetic_map(n, K)
+    kf_frames = list(range(0, K * 5, 5))
+    snap_s = timed(lambda: freeze_gaussians(m.to_numpy()))
+    arrays = freeze_gaussians(m.to_numpy())
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        layer = MapLayer(server, consolidate_every=10**9, consolidate_interval_s=1e9)
+        t0 = time.perf_counter()
+        layer.update(snapshot_of(arrays, kf_frames, 1))
+        first_push = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        layer.update(snapshot_of(arrays, kf_frames, 2), force_consolidate=True)
+        consolidate = time.perf_counter() - t0
+        extra = synthetic_map(5000, 1, seed=1)
+        extra.birth_frame[:] = K * 5
+        m.append(extra)
+        grown = freeze_gaussians(m.to_numpy())
+        t0 = time.perf_counter()
+        layer.update(snapshot_of(grown, kf_frames + [K * 5], 3))
+        chunk = time.perf_counter() - t0
+    finally:
+        server.stop()
+    return dict(gaussians=n, snapshot_build_s=round(snap_s, 4), first_push_s=round(first_push, 4),
+                consolidation_s=round(consolidate, 4), add_5k_chunk_s=round(chunk, 4),
+                chunks=K + 1)
+
+
+def client_side(n: int, timeout: float) -> dict:
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.viewer import StaticSource, build_viewer
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from test_viewer_browser import ARGS, changed_pixels  # noqa: E402
+
+    m = synthetic_map(n, 20)
+    snap = snapshot_of(freeze_gaussians(m.to_numpy()), list(range(0, 100, 5)))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    pw = sync_playwright().start()
+    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+    try:
+        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+        t_wait = time.monotonic()
+        while not server.get_clients() and time.monotonic() - t_wait < 60:
+            time.sleep(0.05)
+        client = next(iter(server.get_clients().values()))
+        with client.atomic():
+            client.camera.position, client.camera.look_at = (0.0, 0.0, -1.5), (0.0, 0.0, 2.5)
+        empty = np.asarray(client.get_render(120, 160, timeout=60), np.int32)
+        t0 = time.monotonic()
+        app = build_viewer(server, StaticSource(snap))   # the viewer starts pushing now
+        seen = None
+        while time.monotonic() - t0 < timeout:
+            img = np.asarray(client.get_render(120, 160, timeout=max(5.0, timeout)), np.int32)
+            if changed_pixels(img, empty) > 1000:
+                seen = time.monotonic() - t0
+                break
+            time.sleep(0.2)
+        app.close()
+        return dict(gaussians=n, first_splats_in_browser_s=None if seen is None else round(seen, 2),
+                    timed_out=seen is None)
+    finally:
+        browser.close()
+        pw.stop()
+        server.stop()
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--json", action="store_true")
+    p.add_argument("--sizes", default="10000,100000,500000")
+    p.add_argument("--client-sizes", default="10000,100000",
+                   help="sizes timed in headless Chromium (software WebGL); '' to skip")
+    p.add_argument("--client-timeout", type=float, default=180.0)
+    args = p.parse_args()
+    out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),
+               server=[], client=[],
+               client_caveat="headless Chromium with SwiftShader software WebGL: worst case, not GPU figures")
+    for n in [int(s) for s in args.sizes.split(",") if s]:
+        out["server"].append(server_side(n))
+        if not args.json:
+            print(out["server"][-1], flush=True)
+    client_sizes = [int(s) for s in args.client_sizes.split(",") if s]
+    skipped = [int(s) for s in args.sizes.split(",") if s and int(s) not in client_sizes]
+    if client_sizes and not Path(CHROMIUM).exists():
+        out["client_skipped"] = f"{CHROMIUM} not installed"
+    else:
+        for n in client_sizes:
+            out["client"].append(client_side(n, args.client_timeout))
+            if not args.json:
+                print(out["client"][-1], flush=True)
+        if skipped:
+            out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
+                                     "minutes there; pass --client-sizes to include them)")
+    if args.json:
+        print(json.dumps(out, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
