@@ -9,7 +9,11 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
+
+# Torch and Numba each bring an OpenMP runtime; busy-waiting threads of one slow the other.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 from splat_core.errors import InputError
 
