@@ -318,7 +318,8 @@ class ViewerApp:
     # ------------------------------------------------------------------ export
     def export_files(self, what: str) -> tuple[str, bytes, Path | None]:
         """(file name, content, path written in the export folder or None)."""
-        from splat_core.io.ply import atomic_write_bytes, ply_bytes
+        from splat_core.io.atomic import write_bytes_atomic
+        from splat_core.io.ply import ply_bytes
 
         snap = self.source.latest()
         if what == "ply":
@@ -327,7 +328,7 @@ class ViewerApp:
             name, content = "trajectory.txt", trajectory_bytes(snap)
         path = None
         if self.export_dir is not None:
-            path = atomic_write_bytes(self.export_dir / name, [content])
+            path = write_bytes_atomic(self.export_dir / name, content)
         return name, content, path
 
     def _export(self, event, what: str) -> None:

@@ -2,6 +2,7 @@
 
     python benchmarks/slam.py --json                               # synthetic + ../shared/data
     python benchmarks/slam.py --sequences synthetic --presets cpu --max-frames 20
+    python benchmarks/slam.py --json --open3d                     # + Open3D baselines side by side
 
 Each run is a separate `splatam run` process (so peak memory is per run) writing into
 --work (default: a temporary folder); figures come from its metrics.json.
@@ -59,6 +60,8 @@ def main() -> None:
     p.add_argument("--max-frames", type=int, default=None, help="limit every sequence (default: all)")
     p.add_argument("--device", default="auto")
     p.add_argument("--work", default=None, help="folder for run outputs (kept; reruns resume)")
+    p.add_argument("--open3d", action="store_true",
+                   help="also run benchmarks/baseline_open3d.py on the real sequences (needs the bench extra)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
 
@@ -80,6 +83,19 @@ def main() -> None:
             results.append(row)
             if not args.json:
                 print(json.dumps(row), flush=True)
+    real = [s for s in args.sequences.split(",") if s != "synthetic"]
+    if args.open3d and real:
+        cmd = [sys.executable, str(ROOT / "benchmarks" / "baseline_open3d.py"), "--sequences", ",".join(real)]
+        if args.max_frames:
+            cmd += ["--max-frames", str(args.max_frames)]
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+        lines = [json.loads(line) for line in proc.stdout.splitlines() if line.startswith("{")]
+        if proc.returncode != 0 and not lines:
+            lines = [{"method": "open3d", "error": proc.stderr.strip().splitlines()[-1:]}]
+        for row in lines:
+            results.append({"preset": row.pop("method", "open3d"), **row})
+            if not args.json:
+                print(json.dumps(results[-1]), flush=True)
     if args.json:
         print(json.dumps(results, indent=1))
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 import torch
 
 from splat_core.camera import (Intrinsics, backproject, invert_pose, pose_matrix, predict_constant_velocity,

@@ -42,3 +42,24 @@ def test_7scenes_65535_is_invalid():
     for i in range(0, len(src), 30):
         d = src[i].depth
         assert np.all(d < 65.0)  # 65535 mm would read as 65.5 m
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not FOLDERS, reason=f"real data not found at {DATA}")
+@pytest.mark.parametrize("name", FOLDERS or ["none"])
+def test_short_run_on_real_sequence(name, tmp_path):
+    """`splatam run` end to end on the first frames of each real sequence (small settings)."""
+    import json
+
+    from app.cli import splatam_main
+
+    cfg = tmp_path / "short.yaml"
+    cfg.write_text("base: cpu\nresolution: [160, 120]\ntracking: {coarse_iterations: 0, iterations: 8}\n"
+                   "mapping: {iterations: 3, first_frame_iterations: 10}\n")
+    out = tmp_path / "run"
+    assert splatam_main(["run", "--input", str(DATA / name), "--out", str(out), "--config", str(cfg),
+                         "--max-frames", "3", "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == min(3, metrics["frames"]) and metrics["num_gaussians"] > 1000
+    assert metrics["ate_rmse_cm"] is not None and metrics["ate_rmse_cm"] < 10
+    assert (out / "map.ply").stat().st_size > 0

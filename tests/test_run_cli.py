@@ -12,7 +12,7 @@ from splat_core.config import load_config
 from splat_core.io.ply import read_ply
 from splat_core.io.trajectory import read_tum_trajectory
 from splat_core.pipeline import Pipeline, open_input
-from tests.capture_fixtures import write_tum
+import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
 
 TINY = """base: cpu
 resolution: [64, 48]
@@ -25,7 +25,7 @@ mapping: {iterations: 3, first_frame_iterations: 6, window_size: 4}
 
 @pytest.fixture()
 def capture(tmp_path):
-    write_tum(tmp_path / "cap", n=8)
+    fixtures.write_tum(tmp_path / "cap", n=8)
     (tmp_path / "tiny.yaml").write_text(TINY)
     return tmp_path
 
@@ -116,3 +116,19 @@ def test_bad_input_is_one_line_and_exit_2(capture, capsys, case):
     assert len(lines) == 1 and lines[0].startswith("error: "), err
     assert "Traceback" not in err
     assert not (out / "map.ply").exists() and not (out / "metrics.json").exists()
+
+
+@pytest.mark.parametrize("writer,name", [("write_replica", "rep"), ("write_scannet", "sn"),
+                                         ("write_scannetpp", "snpp"), ("write_nerfcapture", "nc"),
+                                         ("write_record3d", "cap.r3d"), ("write_strayscanner", "stray")])
+def test_run_works_on_every_capture_format(tmp_path, capsys, writer, name):
+
+    kwargs = {"as_zip": True} if writer == "write_record3d" else {}
+    fixture = getattr(fixtures, writer)(tmp_path / name, n=3, **kwargs)
+    (tmp_path / "tiny.yaml").write_text(TINY)
+    out = tmp_path / "run"
+    code, err = run_cli(["run", "--input", str(fixture.path), "--out", str(out),
+                         "--config", str(tmp_path / "tiny.yaml"), "--quiet"], capsys)
+    assert code == 0, err
+    stamps, _ = read_tum_trajectory(out / "trajectory.txt")
+    assert len(stamps) == 3

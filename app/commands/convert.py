@@ -34,7 +34,8 @@ def write_tum(source, out_dir: Path, progress=None) -> dict:
     import yaml
 
     from splat_core.io.images import write_color_png, write_depth_png
-    from splat_core.io.trajectory import atomic_write_text, format_tum_line
+    from splat_core.io.atomic import write_text_atomic
+    from splat_core.io.trajectory import format_tum_line
 
     (out_dir / "rgb").mkdir()
     (out_dir / "depth").mkdir()
@@ -54,13 +55,13 @@ def write_tum(source, out_dir: Path, progress=None) -> dict:
         if progress:
             progress(i + 1, len(source))
     origin = f"converted by splatam convert from {source.format_name} capture {source.path}"
-    atomic_write_text(out_dir / "rgb.txt", f"# color images\n# {origin}\n# timestamp filename\n"
+    write_text_atomic(out_dir / "rgb.txt", f"# color images\n# {origin}\n# timestamp filename\n"
                       + "\n".join(rgb_lines) + "\n")
-    atomic_write_text(out_dir / "depth.txt", f"# depth maps\n# {origin}\n# timestamp filename\n"
+    write_text_atomic(out_dir / "depth.txt", f"# depth maps\n# {origin}\n# timestamp filename\n"
                       + "\n".join(depth_lines) + "\n")
-    atomic_write_text(out_dir / "associations.txt", "\n".join(assoc_lines) + "\n")
+    write_text_atomic(out_dir / "associations.txt", "\n".join(assoc_lines) + "\n")
     if gt_lines:
-        atomic_write_text(out_dir / "groundtruth.txt",
+        write_text_atomic(out_dir / "groundtruth.txt",
                           f"# ground truth trajectory (camera-to-world, OpenCV camera axes)\n# {origin}\n"
                           "# timestamp tx ty tz qx qy qz qw\n" + "\n".join(gt_lines) + "\n")
     intr = source.intrinsics
@@ -68,7 +69,7 @@ def write_tum(source, out_dir: Path, progress=None) -> dict:
                width=int(intr.width), height=int(intr.height), depth_scale=DEPTH_SCALE,
                depth_unit="uint16, metres*5000; 0 = invalid", source=origin,
                source_format=source.format_name)
-    atomic_write_text(out_dir / "camera.yaml", yaml.safe_dump(cam, sort_keys=False))
+    write_text_atomic(out_dir / "camera.yaml", yaml.safe_dump(cam, sort_keys=False))
     return dict(frames=len(source), poses=len(gt_lines), depth_out_of_range_pixels=n_clipped)
 
 

@@ -27,10 +27,15 @@ def atomic_path(path):
         raise
 
 
-def write_bytes_atomic(path, data: bytes) -> None:
+def write_bytes_atomic(path, data) -> Path:
+    """Write `data` (bytes, or an iterable of byte chunks) atomically; returns the path."""
+    chunks = [data] if isinstance(data, (bytes, bytearray, memoryview)) else data
     with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
+        with open(tmp, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk)
+    return Path(path)
 
 
-def write_text_atomic(path, text: str) -> None:
-    write_bytes_atomic(path, text.encode("utf-8"))
+def write_text_atomic(path, text: str) -> Path:
+    return write_bytes_atomic(path, text.encode("utf-8"))

@@ -17,12 +17,12 @@ by descending scale-volume x opacity (what web viewers expect to stream front-lo
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from .atomic import write_bytes_atomic
 
 SH_C0 = 0.28209479177387814  # degree-0 spherical-harmonic basis constant
 
@@ -45,26 +45,6 @@ _PLY_TYPES = {
 
 
 # ----------------------------------------------------------------------------- helpers
-
-def atomic_write_bytes(path, chunks) -> Path:
-    """Write byte chunks to `path` through a temporary file in the same folder, then rename,
-    so a failure never leaves a half-written file in place of a good one."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
-
 
 def _checked(arrays: dict) -> dict[str, np.ndarray]:
     """The five parameter arrays as float32 with consistent N, log_scales as N x 3."""
@@ -127,7 +107,7 @@ def _ply_parts(arrays: dict) -> tuple[bytes, bytes]:
 def write_ply(path, arrays: dict) -> Path:
     """Write a Gaussian map as a standard 3DGS PLY (SH degree 0) atomically; returns the path."""
     header, body = _ply_parts(arrays)
-    return atomic_write_bytes(path, [header, body])
+    return write_bytes_atomic(path, [header, body])
 
 
 def _parse_header(f, path: Path):
@@ -267,7 +247,7 @@ def splat_bytes(arrays: dict) -> bytes:
 
 def write_splat(path, arrays: dict) -> Path:
     """Write the antimatter15 `.splat` layout (32 B per Gaussian, sorted) atomically."""
-    return atomic_write_bytes(path, [splat_bytes(arrays)])
+    return write_bytes_atomic(path, splat_bytes(arrays))
 
 
 def read_splat(path) -> dict[str, np.ndarray]:

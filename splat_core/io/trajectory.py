@@ -6,14 +6,13 @@ in code they are (w, x, y, z) (DESIGN.md §3).
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from ..camera import rotmat_to_quat
 from ..errors import InputError
+from .atomic import write_text_atomic
 
 
 def parse_tum_lines(path: Path, min_columns: int = 8) -> list[tuple[int, list[str]]]:
@@ -90,20 +89,5 @@ def write_tum_trajectory(path, timestamps, c2w, header: str | None = None) -> in
             continue
         lines.append(format_tum_line(float(t), T))
         n += 1
-    atomic_write_text(path, "\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return n
-
-
-def atomic_write_text(path: Path, text: str) -> None:
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise

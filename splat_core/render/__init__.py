@@ -25,7 +25,7 @@ import numpy as np
 import torch
 
 from ..camera import Intrinsics
-from ..gaussians import GaussianMap, Gaussians
+from ..gaussians import GaussianMap
 from .project import project_gaussians
 from .reference import rasterize_reference
 

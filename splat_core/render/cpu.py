@@ -82,7 +82,6 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, c
 
     boxes[j] = (x0, x1, y0, y1) inclusive pixel bounds; x0 > x1 when nothing can be covered.
     """
-    half = consts[_C_HALF]
     one = consts[_C_ONE]
     zero = consts[_C_ZERO]
     two = consts[_C_TWO]
