@@ -186,8 +186,7 @@ class SlamWorker(threading.Thread):
     # ------------------------------------------------------------------ snapshots
     def _keyframes(self) -> tuple:
         views = []
-        store = getattr(self.pipeline.slam, "keyframes", None)
-        for kf in list(getattr(store, "items", store) or []):
+        for kf in list(self.pipeline.slam.keyframes):
             view = self._keyframe_views.get(kf.frame_index)
             if view is None:
                 c2w = np.linalg.inv(np.asarray(kf.w2c, np.float64))

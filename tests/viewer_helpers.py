@@ -11,6 +11,8 @@ import numpy as np
 from splat_core.camera import Intrinsics, invert_pose
 from splat_core.frame import Frame
 from splat_core.gaussians import GaussianMap
+from splat_core.keyframes import Keyframe
+from splat_core.slam import FrameResult
 
 INTR = Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)
 FRAME_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.3, 1.0), (0.1, 0.9, 0.2), (0.9, 0.9, 0.1), (0.8, 0.2, 0.9)]
@@ -23,34 +25,6 @@ def blob_map(n: int, frame_index: int = 0, color=(1.0, 0.1, 0.1), center=(0.0, 0
     pts = np.asarray(center) + np.c_[rng.uniform(-spread, spread, (n, 2)), rng.normal(0, 0.01, n)]
     cols = np.tile(np.asarray(color, np.float32), (n, 1))
     return GaussianMap.from_points(pts, cols, np.full(n, radius), frame_index, opacity=opacity)
-
-
-@dataclass
-class FakeResult:
-    index: int
-    timestamp: float
-    w2c: np.ndarray
-    is_keyframe: bool
-    num_gaussians: int
-    num_added: int
-    num_pruned: int
-    tracking_seconds: float
-    mapping_seconds: float
-    tracking_loss: float | None
-    source_index: int = 0
-    frame: Frame | None = None
-
-    @property
-    def c2w(self):
-        return invert_pose(self.w2c)
-
-
-@dataclass
-class FakeKeyframe:
-    frame_index: int
-    w2c: np.ndarray
-    color: np.ndarray
-    depth: np.ndarray
 
 
 @dataclass
@@ -101,9 +75,9 @@ class FakePipeline:
         frame = self.frame(k)
         is_kf = k % self.keyframe_every == 0
         if is_kf:
-            self.slam.keyframes.append(FakeKeyframe(k, w2c, frame.color, frame.depth))
-        return FakeResult(k, k / 30.0, w2c, is_kf, len(self.slam.map), self.per_frame, 0,
-                          0.01, 0.02, 0.5 / (k + 1), k, frame)
+            self.slam.keyframes.append(Keyframe(k, w2c, frame.color, frame.depth))
+        return FrameResult(k, k / 30.0, w2c, is_kf, len(self.slam.map), self.per_frame, 0,
+                           0.01, 0.02, 0.5 / (k + 1), source_index=k, frame=frame)
 
     def estimated_c2w(self):
         return [invert_pose(w) for w in self.w2cs]
