@@ -38,6 +38,7 @@ class TrackingConfig:
     use_reference_poses: bool = False     # skip tracking, use the capture's poses (mapping only)
     compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot
     early_stop_tolerance: float = 0.0     # stop when the pose update is below this (m / rad); 0 = never
+    outlier_factor: float | None = None   # drop pixels whose depth error exceeds this x the median error
 
 
 @dataclass

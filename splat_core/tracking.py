@@ -31,8 +31,12 @@ class TrackResult:
 def tracking_loss(rendered, color: torch.Tensor, depth: torch.Tensor, config: TrackingConfig):
     """(loss, mask) with mask = valid depth and silhouette above the threshold (detached)."""
     mask = (depth > 0) & (rendered.alpha.detach() > config.silhouette_threshold)
+    error = torch.abs(depth - rendered.depth)
+    if config.outlier_factor is not None and bool(mask.any()):
+        # Depth outliers (sensor edges, moving objects) would pull the pose; SplaTAM's optional rule.
+        mask = mask & (error.detach() < config.outlier_factor * error.detach()[mask].median())
     m = mask.to(depth.dtype)
-    depth_term = (torch.abs(depth - rendered.depth) * m).sum()
+    depth_term = (error * m).sum()
     color_term = (torch.abs(color - rendered.color) * m[..., None]).sum()
     return config.depth_weight * depth_term + config.color_weight * color_term, mask, depth_term
 
