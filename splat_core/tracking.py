@@ -4,7 +4,10 @@ Only the 7 pose numbers (w2c quaternion + translation) are optimised, with a sma
 loss uses the pixels the map already explains (silhouette > 0.99) with valid depth:
     L = w_d sum |D - D_hat| + w_c sum |C - C_hat|        (sums, as in SplaTAM)
 The best pose is the one with the lowest loss, snapshotted *before* the step that follows it
-(the original snapshots after stepping; `compat_post_step_candidate` reproduces that).
+(the original snapshots after stepping; `compat_post_step_candidate` reproduces that). A pose
+qualifies only if it still sees at least half as many loss pixels as the starting pose: a sum
+over fewer pixels is smaller without being better, and a pose that looks away from the map
+would otherwise "win" with a loss of zero.
 """
 
 from __future__ import annotations
@@ -55,15 +58,19 @@ def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: 
         w2c = w2c_from_quat_trans(q, t)
         out = render(gaussians, intr, w2c, near=near)
         loss, mask, depth_term = tracking_loss(out, color, depth, config)
-        value = float(loss.detach())
+        value, valid = float(loss.detach()), int(mask.sum())
+        if done == 0:
+            min_valid = max(1, valid // 2)
+        if valid < min_valid:
+            value = float("inf")
         if not config.compat_post_step_candidate and value < best[0]:
-            best = (value, q.detach().clone(), t.detach().clone(), int(mask.sum()))
+            best = (value, q.detach().clone(), t.detach().clone(), valid)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         q_before, t_before = q.detach().clone(), t.detach().clone()
         optimizer.step()
         if config.compat_post_step_candidate and value < best[0]:
-            best = (value, q.detach().clone(), t.detach().clone(), int(mask.sum()))
+            best = (value, q.detach().clone(), t.detach().clone(), valid)
         done += 1
         if config.early_stop_tolerance > 0:
             step = max(float((t.detach() - t_before).abs().max()), float((q.detach() - q_before).abs().max()))
