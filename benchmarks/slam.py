@@ -77,7 +77,7 @@ def main() -> None:
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue
         for preset in args.presets.split(","):
-            out = work / f"{seq}__{preset.replace('+', '_')}"
+            out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}"
             row = {"sequence": seq, "preset": preset, **run_one(path, preset, out, args.max_frames, args.device),
                    "machine": machine(), "run_dir": str(out)}
             results.append(row)
