@@ -14,6 +14,7 @@ import argparse
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -50,7 +51,11 @@ def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: 
     keep = ("frames", "ate_rmse_cm", "ate_mean_legacy_cm", "psnr", "ssim", "depth_l1_cm",
             "tracking_seconds_per_frame", "mapping_seconds_per_frame", "seconds_per_frame",
             "num_gaussians", "peak_memory_mb", "peak_gpu_memory_mb", "resolution", "device")
-    return {k: m.get(k) for k in keep if k in m}
+    result = {k: m.get(k) for k in keep if k in m}
+    later = [f["tracking_seconds"] + f["mapping_seconds"] for f in m.get("per_frame", [])[1:]]
+    if later:   # frame 0 runs the long first mapping; the median of the rest is the steady cost
+        result["seconds_per_frame_median"] = statistics.median(later)
+    return result
 
 
 def main() -> None:

@@ -39,6 +39,10 @@ class TrackingConfig:
     compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot
     early_stop_tolerance: float = 0.0     # stop when the pose update is below this (m / rad); 0 = never
     outlier_factor: float | None = None   # drop pixels whose depth error exceeds this x the median error
+    align_iterations: int = 0             # Gauss-Newton pre-alignment to the rendered map (direct_align.py), per level; 0 = off
+    align_levels: int = 3                 # pyramid levels of that alignment
+    align_passes: int = 1                 # renders (re-linearisations) of that alignment
+    align_color_weight: float = 1.0       # photometric term's weight against point-to-plane depth
 
 
 @dataclass
@@ -97,6 +101,9 @@ class Config:
     def validate(self) -> "Config":
         checks = [
             (self.tracking.iterations >= 0, "tracking.iterations must be >= 0"),
+            (self.tracking.align_iterations >= 0, "tracking.align_iterations must be >= 0"),
+            (self.tracking.align_levels >= 1 and self.tracking.align_passes >= 1,
+             "tracking.align_levels and tracking.align_passes must be >= 1"),
             (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),

@@ -85,6 +85,8 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
         index = torch.nonzero(seen).flatten()
     else:
         index = torch.arange(len(m), device=m.device)
+    if index.numel() == 0:        # nothing of the map is in view (e.g. after a tracking failure)
+        return {"pruned": removed, "loss": None, "optimised": 0}
     optimised = index.clone()
     sub = GaussianMap(*(m.params[n].detach()[index] for n in PARAM_NAMES), m.birth_frame[index.cpu()])
     optimizer = torch.optim.Adam(sub.param_groups(config.lrs), eps=1e-15)

@@ -21,13 +21,14 @@ import torch
 
 from .camera import Intrinsics, invert_pose, predict_constant_velocity
 from .config import Config
+from .direct_align import align_to_map
 from .densify import gaussians_from_pixels, new_pixel_mask
 from .frame import Frame
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import KeyframeStore, is_keyframe_time
 from .mapping import View, frustum_mask, optimise_map
 from .render import render
-from .tracking import track
+from .tracking import evaluate_loss, track
 
 
 @dataclass
@@ -114,17 +115,34 @@ class SplaTAM:
 
     # ------------------------------------------------------------------ steps
     def _track(self, color, depth, w2c_init):
-        """Coarse-to-fine: optional iterations at a lower resolution, then at the tracking resolution."""
+        """Optional Gauss-Newton alignment to the rendered map, then SplaTAM's Adam iterations,
+        coarse to fine (a stage with no iterations is skipped)."""
         tc = self.config.tracking
         nearby = frustum_mask(self.map.means.detach(), self.map.log_scales.detach(), self.intrinsics, w2c_init,
                               self.config.near_plane, margin=0.25)
         g = self.map.tensors(detach=True)
         g = Gaussians(*(x[nearby] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        stages = [(self._scaled(tc.coarse_scale), dataclasses.replace(tc, iterations=tc.coarse_iterations))] \
-            if tc.coarse_iterations > 0 else []
-        stages.append((self.track_intrinsics, tc))
-        w2c, loss, iterations = w2c_init, None, 0
+        color_t, depth_t = self._tensor(color), self._tensor(depth)
+        w2c, loss = w2c_init, None
+        if tc.align_iterations > 0:
+            aligned = align_to_map(g, color, depth, self.intrinsics, w2c, levels=tc.align_levels,
+                                   iterations=tc.align_iterations, passes=tc.align_passes,
+                                   color_weight=tc.align_color_weight,
+                                   silhouette=tc.silhouette_threshold, near=self.config.near_plane).w2c
+            # Keep the alignment only if SplaTAM's own loss agrees: a lower loss per pixel, over at
+            # least half as many pixels (the rule of tracking.track).
+            loss_init, valid_init = evaluate_loss(g, color_t, depth_t, self.intrinsics, w2c, tc, self.config.near_plane)
+            loss, valid = evaluate_loss(g, color_t, depth_t, self.intrinsics, aligned, tc, self.config.near_plane)
+            if 2 * valid >= valid_init and loss * valid_init <= loss_init * valid:
+                w2c = aligned
+            else:
+                loss = loss_init
+        stages = [(self._scaled(tc.coarse_scale), dataclasses.replace(tc, iterations=tc.coarse_iterations)),
+                  (self.track_intrinsics, tc)]
+        iterations = 0
         for intr, stage_config in stages:
+            if stage_config.iterations == 0:
+                continue
             result = track(g, self._tensor(_resized(color, intr, False)), self._tensor(_resized(depth, intr, True)),
                            intr, w2c, stage_config, near=self.config.near_plane)
             w2c, loss, iterations = result.w2c, result.loss, iterations + result.iterations

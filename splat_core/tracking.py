@@ -44,6 +44,15 @@ def tracking_loss(rendered, color: torch.Tensor, depth: torch.Tensor, config: Tr
     return config.depth_weight * depth_term + config.color_weight * color_term, mask, depth_term
 
 
+def evaluate_loss(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
+                  w2c: np.ndarray, config: TrackingConfig, near: float = 0.01) -> tuple[float, int]:
+    """The tracking loss of one pose (no optimisation) and the number of pixels in it."""
+    with torch.no_grad():
+        out = render(gaussians, intr, w2c, near=near)
+        loss, mask, _ = tracking_loss(out, color, depth, config)
+        return float(loss), int(mask.sum())
+
+
 def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
           w2c_init: np.ndarray, config: TrackingConfig, near: float = 0.01) -> TrackResult:
     """Optimise the w2c pose of an observation (colour H x W x 3, depth H x W at `intr`)."""
