@@ -290,3 +290,22 @@ def test_direct_alignment_keeps_the_start_when_the_map_is_out_of_view():
     away = pose_matrix(quat_to_rotmat_np([0.0, 0.0, 1.0, 0.0]), (0.0, 0.0, 0.0))   # looking backwards
     out = align_to_map(m.tensors(detach=True), f0.color, f0.depth, f0.intrinsics, away)
     assert np.array_equal(out.w2c, away) and out.correspondences < 50
+
+
+def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
+    import splat_core.slam as slam_module
+    from splat_core.direct_align import AlignResult
+    from splat_core.slam import SplaTAM
+    src = small_source(n=2, w=80, h=60)
+    cfg = load_config("cpu", overrides={"resolution": [80, 60], "tracking": {"iterations": 0},
+                                        "mapping": {"first_frame_iterations": 20}})
+    slam = SplaTAM(cfg, src[0].intrinsics)
+    slam.process(src[0])
+    truth = rel_w2c(src, 1)
+    wrong = pose_matrix(np.eye(3), (0.05, 0.0, 0.0)) @ truth
+    monkeypatch.setattr(slam_module, "align_to_map", lambda *a, **k: AlignResult(wrong, 1000, 0.0))
+    w2c, _, _ = slam._track(src[1].color, src[1].depth, truth)
+    assert np.array_equal(w2c, truth)
+    monkeypatch.setattr(slam_module, "align_to_map", lambda *a, **k: AlignResult(truth, 1000, 0.0))
+    w2c, _, _ = slam._track(src[1].color, src[1].depth, wrong)
+    assert np.array_equal(w2c, truth)
