@@ -28,6 +28,7 @@ import numba
 import numpy as np
 
 from .camera import Intrinsics, backproject, invert_pose
+from .frame import resize_to
 from .gaussians import Gaussians
 from .render import render
 
@@ -94,13 +95,6 @@ class _Level:
         live_valid = live_depth > 0
         self.live_points = np.ascontiguousarray(backproject(live_depth, intr)[live_valid])
         self.live_grey = np.ascontiguousarray(live_grey[live_valid])
-
-
-def _resize(image: np.ndarray, intr: Intrinsics, nearest: bool) -> np.ndarray:
-    if image.shape[:2] == (intr.height, intr.width):
-        return image
-    return cv2.resize(image, (intr.width, intr.height),
-                      interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
 
 
 @numba.njit(cache=True)
@@ -201,9 +195,9 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
         for level in reversed(range(levels)):
             s = 0.5 ** level
             li = intr if level == 0 else intr.scaled(max(8, round(intr.width * s)), max(8, round(intr.height * s)))
-            lvl = _Level(li, _resize(model_depth, li, True), _resize(model_grey, li, False),
-                         _resize(valid.astype(np.uint8), li, True).astype(bool),
-                         _resize(depth.astype(np.float64), li, True), _resize(live_grey, li, False))
+            lvl = _Level(li, resize_to(model_depth, li, True), resize_to(model_grey, li, False),
+                         resize_to(valid.astype(np.uint8), li, True).astype(bool),
+                         resize_to(depth.astype(np.float64), li, True), resize_to(live_grey, li, False))
             for _ in range(iterations):
                 dX, correspondences, rmse = _gauss_newton_step(lvl, X, color_weight, max_distance)
                 X = dX @ X

@@ -48,3 +48,13 @@ def resize_frame(frame: Frame, width: int, height: int) -> Frame:
     depth = cv2.resize(frame.depth, (width, height), interpolation=cv2.INTER_NEAREST)
     return Frame(frame.index, frame.timestamp, np.clip(color, 0.0, 1.0).astype(np.float32),
                  depth.astype(np.float32), frame.intrinsics.scaled(width, height), frame.c2w_ref)
+
+
+def resize_to(image: np.ndarray, intr: Intrinsics, nearest: bool) -> np.ndarray:
+    """An image at `intr`'s size: nearest neighbour for depth and masks, area averaging otherwise."""
+    import cv2
+
+    if image.shape[:2] == (intr.height, intr.width):
+        return image
+    mode = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA
+    return cv2.resize(image, (intr.width, intr.height), interpolation=mode)

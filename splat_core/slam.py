@@ -15,7 +15,6 @@ import json
 import time
 from dataclasses import dataclass, field
 
-import cv2
 import numpy as np
 import torch
 
@@ -23,7 +22,7 @@ from .camera import Intrinsics, invert_pose, predict_constant_velocity
 from .config import Config
 from .direct_align import align_to_map
 from .densify import gaussians_from_pixels, new_pixel_mask
-from .frame import Frame
+from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import KeyframeStore, is_keyframe_time
 from .mapping import View, frustum_mask, optimise_map
@@ -50,13 +49,6 @@ class FrameResult:
     @property
     def c2w(self) -> np.ndarray:
         return invert_pose(self.w2c)
-
-
-def _resized(image: np.ndarray, intr: Intrinsics, nearest: bool) -> np.ndarray:
-    if image.shape[:2] == (intr.height, intr.width):
-        return image
-    mode = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA
-    return cv2.resize(image, (intr.width, intr.height), interpolation=mode)
 
 
 class SplaTAM:
@@ -143,14 +135,14 @@ class SplaTAM:
         for intr, stage_config in stages:
             if stage_config.iterations == 0:
                 continue
-            result = track(g, self._tensor(_resized(color, intr, False)), self._tensor(_resized(depth, intr, True)),
+            result = track(g, self._tensor(resize_to(color, intr, False)), self._tensor(resize_to(depth, intr, True)),
                            intr, w2c, stage_config, near=self.config.near_plane)
             w2c, loss, iterations = result.w2c, result.loss, iterations + result.iterations
         return w2c, loss, iterations
 
     def _densify(self, color, depth, w2c, t) -> int:
         intr = self.densify_intrinsics
-        color_d, depth_d = _resized(color, intr, False), _resized(depth, intr, True)
+        color_d, depth_d = resize_to(color, intr, False), resize_to(depth, intr, True)
         if t == 0 or len(self.map) == 0:
             mask = depth_d > 0
         else:
