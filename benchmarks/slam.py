@@ -64,6 +64,7 @@ def main() -> None:
     p.add_argument("--presets", default="cpu")
     p.add_argument("--max-frames", type=int, default=None, help="limit every sequence (default: all)")
     p.add_argument("--device", default="auto")
+    p.add_argument("--data", default=str(DATA), help="folder holding the real sequences (default: %(default)s)")
     p.add_argument("--work", default=None, help="folder for run outputs (kept; reruns resume)")
     p.add_argument("--open3d", action="store_true",
                    help="also run benchmarks/baseline_open3d.py on the real sequences (needs the bench extra)")
@@ -77,7 +78,7 @@ def main() -> None:
         if seq == "synthetic":
             path = "synthetic"          # the built-in 60-frame 320x240 scene
         else:
-            path = DATA / seq
+            path = Path(args.data) / seq
             if not path.is_dir():
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue

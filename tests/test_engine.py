@@ -309,3 +309,20 @@ def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
     monkeypatch.setattr(slam_module, "align_to_map", lambda *a, **k: AlignResult(truth, 1000, 0.0))
     w2c, _, _ = slam._track(src[1].color, src[1].depth, wrong)
     assert np.array_equal(w2c, truth)
+
+
+@pytest.mark.cuda
+@pytest.mark.slow
+def test_slam_on_cuda_tracks_like_the_cpu():
+    # The whole engine on the GPU (gsplat renderer, tensors on the device, keyframes on the host).
+    from splat_core.pipeline import Pipeline
+    from splat_core.render import cuda
+    reason = cuda.unavailable_reason()
+    if reason is not None:
+        pytest.skip(f"CUDA backend unavailable: {reason}")
+    pipe = Pipeline(SyntheticSource(n_frames=8, width=320, height=240, seed=0), load_config("splatam_s"),
+                    device="cuda")
+    while pipe.step() is not None:
+        pass
+    assert pipe.slam.map.device.type == "cuda"
+    assert pipe.ate_cm() < 1.0
