@@ -30,7 +30,7 @@ import numpy as np
 from .camera import Intrinsics, backproject, invert_pose
 from .frame import resize_to
 from .gaussians import Gaussians
-from .render import render
+from .render import Render, render
 
 
 @dataclass
@@ -38,6 +38,7 @@ class AlignResult:
     w2c: np.ndarray
     correspondences: int        # depth residuals in the last iteration at full resolution
     rmse_depth: float           # their point-to-plane RMS (metres)
+    first_render: Render        # the map rendered at w2c_init (the caller reuses it)
 
 
 def _grey(color: np.ndarray) -> np.ndarray:
@@ -185,8 +186,10 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
     Falls back to w2c_init when the map explains too little of the frame (fewer than 50 residuals)."""
     w2c, correspondences, rmse = np.asarray(w2c_init, dtype=np.float64), 0, float("inf")
     live_grey = _grey(color)
+    first = None
     for _ in range(passes):
         out = render(gaussians, intr, w2c, near=near)
+        first = out if first is None else first
         alpha = out.alpha.detach().cpu().numpy().astype(np.float64)
         valid = alpha > silhouette
         model_depth = np.where(valid, out.depth.detach().cpu().numpy() / np.maximum(alpha, 1e-6), 0.0)
@@ -204,7 +207,7 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
                 if np.abs(dX - np.eye(4)).max() < 1e-7:
                     break
         if correspondences < 50:
-            return AlignResult(np.asarray(w2c_init, dtype=np.float64), correspondences, rmse)
+            return AlignResult(np.asarray(w2c_init, dtype=np.float64), correspondences, rmse, first)
         # X maps live-camera points into the rendered camera: w2c_live = X^-1 w2c_rendered.
         w2c = invert_pose(X) @ w2c
-    return AlignResult(w2c, correspondences, rmse)
+    return AlignResult(w2c, correspondences, rmse, first)

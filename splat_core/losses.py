@@ -2,8 +2,10 @@
 
 Images are H x W x C (the renderer's colour layout) or H x W (depth, silhouette); any float
 dtype and device. SSIM follows the standard 3D Gaussian splatting definition (spec §4.4): an
-11 x 11 Gaussian window with sigma 1.5 applied per channel (grouped convolution), zero padding
-of 5 pixels, C1 = 0.01^2, C2 = 0.03^2 (data range 1), and the mean of the SSIM map.
+11 x 11 Gaussian window with sigma 1.5 applied per channel, zero padding of 5 pixels,
+C1 = 0.01^2, C2 = 0.03^2 (data range 1), and the mean of the SSIM map. The window is the outer
+product of a 1D Gaussian, so the blur runs as two 1D passes (same result, about twice as fast on
+a CPU as one 11 x 11 convolution).
 """
 
 from __future__ import annotations
@@ -58,12 +60,18 @@ def l1(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = Non
     raise ValueError(f"reduction must be 'sum', 'mean' or 'none', got {reduction!r}")
 
 
-def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *,
-                    dtype=torch.float32, device=None) -> torch.Tensor:
-    """Normalised 2D Gaussian window (size x size), the outer product of a 1D Gaussian."""
+def gaussian_window_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *,
+                       dtype=torch.float32, device=None) -> torch.Tensor:
+    """Normalised 1D Gaussian window of `size` taps."""
     x = torch.arange(size, dtype=torch.float64) - (size - 1) / 2.0
     g = torch.exp(-(x ** 2) / (2.0 * sigma ** 2))
-    g = g / g.sum()
+    return (g / g.sum()).to(dtype=dtype, device=device)
+
+
+def gaussian_window(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA, *,
+                    dtype=torch.float32, device=None) -> torch.Tensor:
+    """Normalised 2D Gaussian window (size x size), the outer product of the 1D window."""
+    g = gaussian_window_1d(size, sigma)
     return torch.outer(g, g).to(dtype=dtype, device=device)
 
 
@@ -75,23 +83,23 @@ def _to_nchw(img: torch.Tensor) -> torch.Tensor:
     raise ValueError(f"expected an H x W or H x W x C image, got shape {tuple(img.shape)}")
 
 
+def _blur(t: torch.Tensor) -> torch.Tensor:
+    """The SSIM window applied to every channel of 1 x K x H x W, zero padded: rows, then columns."""
+    k, pad = t.shape[1], SSIM_WINDOW // 2
+    g = gaussian_window_1d(dtype=t.dtype, device=t.device)
+    t = F.conv2d(t, g.view(1, 1, 1, -1).expand(k, 1, 1, SSIM_WINDOW), padding=(0, pad), groups=k)
+    return F.conv2d(t, g.view(1, 1, -1, 1).expand(k, 1, SSIM_WINDOW, 1), padding=(pad, 0), groups=k)
+
+
 def ssim_map(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
     """Per-pixel SSIM, 1 x C x H x W (see module doc for the definition)."""
     if img1.shape != img2.shape:
         raise ValueError(f"ssim: shapes differ {tuple(img1.shape)} vs {tuple(img2.shape)}")
     x, y = _to_nchw(img1), _to_nchw(img2)
-    channels = x.shape[1]
-    window = gaussian_window(dtype=x.dtype, device=x.device).expand(channels, 1, SSIM_WINDOW, SSIM_WINDOW)
-    pad = SSIM_WINDOW // 2
-
-    def blur(t):
-        return F.conv2d(t, window, padding=pad, groups=channels)
-
-    mu_x, mu_y = blur(x), blur(y)
+    # The five blurred images in one call.
+    mu_x, mu_y, blur_xx, blur_yy, blur_xy = _blur(torch.cat([x, y, x * x, y * y, x * y], 1)).split(x.shape[1], 1)
     mu_xx, mu_yy, mu_xy = mu_x * mu_x, mu_y * mu_y, mu_x * mu_y
-    sigma_xx = blur(x * x) - mu_xx
-    sigma_yy = blur(y * y) - mu_yy
-    sigma_xy = blur(x * y) - mu_xy
+    sigma_xx, sigma_yy, sigma_xy = blur_xx - mu_xx, blur_yy - mu_yy, blur_xy - mu_xy
     return ((2 * mu_xy + SSIM_C1) * (2 * sigma_xy + SSIM_C2)) / (
         (mu_xx + mu_yy + SSIM_C1) * (sigma_xx + sigma_yy + SSIM_C2))
 

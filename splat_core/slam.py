@@ -27,7 +27,7 @@ from .gaussians import GaussianMap, Gaussians
 from .keyframes import KeyframeStore, is_keyframe_time
 from .mapping import View, frustum_mask, optimise_map
 from .render import render
-from .tracking import evaluate_loss, track
+from .tracking import beats, evaluate_loss, loss_and_pixels, track
 
 
 @dataclass
@@ -115,29 +115,32 @@ class SplaTAM:
         g = self.map.tensors(detach=True)
         g = Gaussians(*(x[nearby] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
         color_t, depth_t = self._tensor(color), self._tensor(depth)
-        w2c, loss = w2c_init, None
+        stages = [(intr, cfg) for intr, cfg in
+                  ((self._scaled(tc.coarse_scale), dataclasses.replace(tc, iterations=tc.coarse_iterations)),
+                   (self.track_intrinsics, tc)) if cfg.iterations > 0]
+        w2c, loss, fallback = w2c_init, None, None
         if tc.align_iterations > 0:
+            near = self.config.near_plane
             aligned = align_to_map(g, color, depth, self.intrinsics, w2c, levels=tc.align_levels,
                                    iterations=tc.align_iterations, passes=tc.align_passes,
-                                   color_weight=tc.align_color_weight,
-                                   silhouette=tc.silhouette_threshold, near=self.config.near_plane).w2c
-            # Keep the alignment only if SplaTAM's own loss agrees: a lower loss per pixel, over at
-            # least half as many pixels (the rule of tracking.track).
-            loss_init, valid_init = evaluate_loss(g, color_t, depth_t, self.intrinsics, w2c, tc, self.config.near_plane)
-            loss, valid = evaluate_loss(g, color_t, depth_t, self.intrinsics, aligned, tc, self.config.near_plane)
-            if 2 * valid >= valid_init and loss * valid_init <= loss_init * valid:
-                w2c = aligned
-            else:
-                loss = loss_init
-        stages = [(self._scaled(tc.coarse_scale), dataclasses.replace(tc, iterations=tc.coarse_iterations)),
-                  (self.track_intrinsics, tc)]
+                                   color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold,
+                                   near=near)
+            # Keep the alignment only if SplaTAM's own loss agrees (tracking.beats). The first Adam
+            # iteration evaluates the aligned pose anyway, so the check rides on it when it can.
+            fallback = (w2c_init, *loss_and_pixels(aligned.first_render, color_t, depth_t, tc))
+            w2c = aligned.w2c
+            if not stages or stages[0][0] != self.intrinsics:
+                loss_aligned, valid = evaluate_loss(g, color_t, depth_t, self.intrinsics, w2c, tc, near)
+                if beats(loss_aligned, valid, *fallback[1:]):
+                    loss = loss_aligned
+                else:
+                    w2c, loss = w2c_init, fallback[1]
+                fallback = None
         iterations = 0
         for intr, stage_config in stages:
-            if stage_config.iterations == 0:
-                continue
             result = track(g, self._tensor(resize_to(color, intr, False)), self._tensor(resize_to(depth, intr, True)),
-                           intr, w2c, stage_config, near=self.config.near_plane)
-            w2c, loss, iterations = result.w2c, result.loss, iterations + result.iterations
+                           intr, w2c, stage_config, near=self.config.near_plane, fallback=fallback)
+            w2c, loss, iterations, fallback = result.w2c, result.loss, iterations + result.iterations, None
         return w2c, loss, iterations
 
     def _densify(self, color, depth, w2c, t) -> int:

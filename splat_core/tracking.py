@@ -44,18 +44,33 @@ def tracking_loss(rendered, color: torch.Tensor, depth: torch.Tensor, config: Tr
     return config.depth_weight * depth_term + config.color_weight * color_term, mask, depth_term
 
 
+def loss_and_pixels(rendered, color: torch.Tensor, depth: torch.Tensor, config: TrackingConfig) -> tuple[float, int]:
+    """The tracking loss of a rendering (no gradient) and the number of pixels in it."""
+    with torch.no_grad():
+        loss, mask, _ = tracking_loss(rendered, color, depth, config)
+        return float(loss), int(mask.sum())
+
+
 def evaluate_loss(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
                   w2c: np.ndarray, config: TrackingConfig, near: float = 0.01) -> tuple[float, int]:
     """The tracking loss of one pose (no optimisation) and the number of pixels in it."""
     with torch.no_grad():
-        out = render(gaussians, intr, w2c, near=near)
-        loss, mask, _ = tracking_loss(out, color, depth, config)
-        return float(loss), int(mask.sum())
+        return loss_and_pixels(render(gaussians, intr, w2c, near=near), color, depth, config)
+
+
+def beats(loss: float, pixels: int, loss_ref: float, pixels_ref: int) -> bool:
+    """A pose beats a reference pose with a lower loss per pixel over at least half as many pixels."""
+    return 2 * pixels >= pixels_ref and loss * pixels_ref <= loss_ref * pixels
 
 
 def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
-          w2c_init: np.ndarray, config: TrackingConfig, near: float = 0.01) -> TrackResult:
-    """Optimise the w2c pose of an observation (colour H x W x 3, depth H x W at `intr`)."""
+          w2c_init: np.ndarray, config: TrackingConfig, near: float = 0.01,
+          fallback: tuple[np.ndarray, float, int] | None = None) -> TrackResult:
+    """Optimise the w2c pose of an observation (colour H x W x 3, depth H x W at `intr`).
+
+    fallback: (w2c, loss, pixels) of another start, its loss computed at `intr` (e.g. the
+    prediction that an alignment produced w2c_init from). If w2c_init does not `beats` it, the
+    optimisation starts from the fallback instead; the check costs no extra rendering."""
     dtype, device = gaussians.means.dtype, gaussians.means.device
     q = torch.tensor(rotmat_to_quat(w2c_init[:3, :3]), dtype=dtype, device=device, requires_grad=True)
     t = torch.tensor(w2c_init[:3, 3], dtype=dtype, device=device, requires_grad=True)
@@ -68,6 +83,14 @@ def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: 
         out = render(gaussians, intr, w2c, near=near)
         loss, mask, depth_term = tracking_loss(out, color, depth, config)
         value, valid = float(loss.detach()), int(mask.sum())
+        if fallback is not None:
+            w2c_fb, loss_fb, valid_fb = fallback
+            fallback = None
+            if not beats(value, valid, loss_fb, valid_fb):
+                with torch.no_grad():
+                    q.copy_(torch.as_tensor(rotmat_to_quat(w2c_fb[:3, :3]), dtype=dtype))
+                    t.copy_(torch.as_tensor(w2c_fb[:3, 3], dtype=dtype))
+                continue
         if done == 0:
             min_valid = max(1, valid // 2)
         if valid < min_valid:

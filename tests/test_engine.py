@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -294,7 +296,6 @@ def test_direct_alignment_keeps_the_start_when_the_map_is_out_of_view():
 
 def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
     import splat_core.slam as slam_module
-    from splat_core.direct_align import AlignResult
     from splat_core.slam import SplaTAM
     src = small_source(n=2, w=80, h=60)
     cfg = load_config("cpu", overrides={"resolution": [80, 60], "tracking": {"iterations": 0},
@@ -303,12 +304,37 @@ def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
     slam.process(src[0])
     truth = rel_w2c(src, 1)
     wrong = pose_matrix(np.eye(3), (0.05, 0.0, 0.0)) @ truth
-    monkeypatch.setattr(slam_module, "align_to_map", lambda *a, **k: AlignResult(wrong, 1000, 0.0))
+    real_align = slam_module.align_to_map
+
+    def align_returning(w2c):
+        return lambda *a, **k: dataclasses.replace(real_align(*a, **k), w2c=w2c)
+
+    monkeypatch.setattr(slam_module, "align_to_map", align_returning(wrong))
     w2c, _, _ = slam._track(src[1].color, src[1].depth, truth)
     assert np.array_equal(w2c, truth)
-    monkeypatch.setattr(slam_module, "align_to_map", lambda *a, **k: AlignResult(truth, 1000, 0.0))
+    monkeypatch.setattr(slam_module, "align_to_map", align_returning(truth))
     w2c, _, _ = slam._track(src[1].color, src[1].depth, wrong)
     assert np.array_equal(w2c, truth)
+
+
+def test_tracking_starts_from_the_fallback_when_the_start_is_worse():
+    # The alignment check riding on Adam's first iteration (tracking.track's `fallback`).
+    from splat_core.tracking import evaluate_loss
+    src = small_source(n=2, w=80, h=60)
+    m = map_from_frame(src[0])
+    f1, truth = src[1], rel_w2c(src, 1)
+    wrong = pose_matrix(np.eye(3), (0.05, 0.0, 0.0)) @ truth
+    cfg = TrackingConfig(iterations=1)
+    color, depth = torch.as_tensor(f1.color), torch.as_tensor(f1.depth)
+    g = m.tensors(detach=True)
+    at_truth = evaluate_loss(g, color, depth, f1.intrinsics, truth, cfg)
+    at_wrong = evaluate_loss(g, color, depth, f1.intrinsics, wrong, cfg)
+    # One iteration returns the pose it evaluated before stepping: the fallback when the start is worse...
+    out = track(g, color, depth, f1.intrinsics, wrong, cfg, fallback=(truth, *at_truth))
+    assert np.allclose(out.w2c, truth, atol=1e-6) and out.iterations == 1
+    # ... and the start when it is better.
+    out = track(g, color, depth, f1.intrinsics, truth, cfg, fallback=(wrong, *at_wrong))
+    assert np.allclose(out.w2c, truth, atol=1e-6)
 
 
 @pytest.mark.cuda
