@@ -69,8 +69,8 @@ def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: 
     """Optimise the w2c pose of an observation (colour H x W x 3, depth H x W at `intr`).
 
     fallback: (w2c, loss, pixels) of another start, its loss computed at `intr` (e.g. the
-    prediction that an alignment produced w2c_init from). If w2c_init does not `beats` it, the
-    optimisation starts from the fallback instead; the check costs no extra rendering."""
+    prediction that an alignment produced w2c_init from). If w2c_init does not beat it (`beats`),
+    the optimisation starts from the fallback instead; the check costs no extra rendering."""
     dtype, device = gaussians.means.dtype, gaussians.means.device
     q = torch.tensor(rotmat_to_quat(w2c_init[:3, :3]), dtype=dtype, device=device, requires_grad=True)
     t = torch.tensor(w2c_init[:3, 3], dtype=dtype, device=device, requires_grad=True)
