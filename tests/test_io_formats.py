@@ -410,3 +410,30 @@ def test_trajectory_write_is_atomic(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         write_tum_trajectory(p, [0.0, 1.0], [np.eye(4), np.eye(4)])
     assert p.read_text() == before and [q.name for q in tmp_path.iterdir()] == ["traj.txt"]
+
+
+def test_camera_file_says_whether_depth_is_registered_to_colour(tmp_path):
+    fx = cf.write_tum(tmp_path / "t")
+    assert open_capture(fx.path).registered
+    cam = fx.path / "camera.yaml"
+    base = cam.read_text()
+    cam.write_text(base + "depth_registered_to_rgb: false\n")
+    assert not open_capture(fx.path).registered
+    cam.write_text(base + "depth_registered_to_rgb: maybe\n")
+    with pytest.raises(InputError, match="camera.yaml.*depth_registered_to_rgb"):
+        open_capture(fx.path)
+
+
+def test_unregistered_capture_is_tracked_on_depth_alone(tmp_path):
+    from splat_core.config import load_config
+    from splat_core.pipeline import Pipeline
+    fx = cf.write_tum(tmp_path / "t")
+    cam = fx.path / "camera.yaml"
+    config = load_config("cpu")
+    pipe = Pipeline(open_capture(fx.path), config)
+    assert pipe.config.tracking.color_weight == config.tracking.color_weight > 0 and not pipe.notes
+    cam.write_text(cam.read_text() + "depth_registered_to_rgb: false\n")
+    pipe = Pipeline(open_capture(fx.path), config)
+    assert pipe.config.tracking.color_weight == 0 and pipe.config.tracking.align_color_weight == 0
+    assert pipe.slam.config.tracking.color_weight == 0 and "not registered" in pipe.notes[0]
+    assert config.tracking.color_weight > 0          # the caller's config is left alone

@@ -46,6 +46,8 @@ def main(args) -> int:
     if not args.quiet:
         print(f"{source.describe()}\nconfig {config_summary(config)}; device {pipe.device}; "
               f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}", file=sys.stderr)
+        for note in pipe.notes:
+            print(f"note: {note}", file=sys.stderr)
     bar = tqdm(total=pipe.total, initial=len(pipe.records), unit="frame", disable=args.quiet,
                dynamic_ncols=True, file=sys.stderr)
     while (r := pipe.step()) is not None:

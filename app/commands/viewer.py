@@ -98,7 +98,8 @@ def main(args) -> int:
         worker = SlamWorker(pipe, start_paused=args.paused)
         source, export_dir = worker, out
         what = (f"{src.describe()}; config {config_summary(config)}; device {pipe.device}; "
-                f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}")
+                f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}"
+                + "".join(f"; note: {n}" for n in pipe.notes))
 
     server = start_server(args.host, args.port)
     app = build_viewer(server, source, export_dir=export_dir)

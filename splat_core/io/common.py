@@ -263,8 +263,9 @@ def find_camera_file(folder: Path) -> Path | None:
 
 
 def load_camera_file(path: Path) -> dict:
-    """camera.yaml / camera.json (fx fy cx cy width height [depth_scale]) or NICE-SLAM's
-    cam_params.json ({"camera": {w h fx fy cx cy scale}}) -> dict with those keys as floats."""
+    """camera.yaml / camera.json (fx fy cx cy width height [depth_scale] [depth_registered_to_rgb])
+    or NICE-SLAM's cam_params.json ({"camera": {w h fx fy cx cy scale}}) -> dict with those keys
+    as floats, and "registered" (bool) when the file says whether depth is registered to colour."""
     path = Path(path)
     text = path.read_text(errors="replace")
     try:
@@ -299,6 +300,11 @@ def load_camera_file(path: Path) -> dict:
         raise InputError(f"{path}: missing {', '.join(missing)} (needs fx fy cx cy width height [depth_scale])")
     if "depth_scale" in out and not out["depth_scale"] > 0:
         raise InputError(f"{path}: depth_scale must be positive, got {out['depth_scale']}")
+    if "depth_registered_to_rgb" in data:
+        if not isinstance(data["depth_registered_to_rgb"], bool):
+            raise InputError(f"{path}: 'depth_registered_to_rgb' must be true or false, "
+                             f"got {data['depth_registered_to_rgb']!r}")
+        out["registered"] = data["depth_registered_to_rgb"]
     return out
 
 

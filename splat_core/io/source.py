@@ -22,6 +22,7 @@ class FrameSource(ABC):
 
     format_name: str = "unknown"
     path: Path | None = None
+    registered: bool = True     # colour and depth pixels correspond (False: the camera file says not)
 
     @abstractmethod
     def __len__(self) -> int: ...

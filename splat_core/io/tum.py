@@ -175,6 +175,7 @@ class TUMCapture(IndexedCapture):
             self.warn(f"no camera file: using the published TUM {which} intrinsics (guessed from the folder name)")
             cam_file = root
         self.depth_scale = float(depth_scale or cam.get("depth_scale") or DEFAULT_DEPTH_SCALE)
+        self.registered = bool(cam.get("registered", True))
         if "width" not in cam or "height" not in cam:
             if not self._rgb:
                 raise InputError(f"{cam_file}: needs width and height")
