@@ -38,23 +38,24 @@ class Frame:
 def resize_frame(frame: Frame, width: int, height: int) -> Frame:
     """Bring a frame to a working resolution: colour by area averaging, depth by nearest
     neighbour (never blend depth across edges), intrinsics scaled to match."""
-    import cv2
-
     if (frame.width, frame.height) == (width, height):
         return frame
-    shrink = width < frame.width
-    color = cv2.resize(frame.color, (width, height),
-                       interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-    depth = cv2.resize(frame.depth, (width, height), interpolation=cv2.INTER_NEAREST)
+    intr = frame.intrinsics.scaled(width, height)
+    color = resize_to(frame.color, intr, False)
+    depth = resize_to(frame.depth, intr, True)
     return Frame(frame.index, frame.timestamp, np.clip(color, 0.0, 1.0).astype(np.float32),
-                 depth.astype(np.float32), frame.intrinsics.scaled(width, height), frame.c2w_ref)
+                 depth.astype(np.float32), intr, frame.c2w_ref)
 
 
 def resize_to(image: np.ndarray, intr: Intrinsics, nearest: bool) -> np.ndarray:
-    """An image at `intr`'s size: nearest neighbour for depth and masks, area averaging otherwise."""
+    """An image at `intr`'s size: nearest neighbour for depth and masks (never blend depth across
+    edges); otherwise area averaging when shrinking, bilinear when enlarging."""
     import cv2
 
     if image.shape[:2] == (intr.height, intr.width):
         return image
-    mode = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA
+    if nearest:
+        mode = cv2.INTER_NEAREST
+    else:
+        mode = cv2.INTER_AREA if intr.width < image.shape[1] else cv2.INTER_LINEAR
     return cv2.resize(image, (intr.width, intr.height), interpolation=mode)

@@ -366,21 +366,24 @@ def test_count_intersections_matches_stats():
 
 # ----------------------------------------------------------------------------- CUDA (gsplat)
 
-def _cuda_skip_reason():
+def _needs_cuda():
     from splat_core.render import cuda
-    return cuda.unavailable_reason()
+    reason = cuda.unavailable_reason()
+    if reason is not None:
+        pytest.skip(f"CUDA backend unavailable: {reason}")
+
+
+def _to_cuda(g: Gaussians) -> Gaussians:
+    return Gaussians(*(x.cuda() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
 
 
 @pytest.mark.cuda
 def test_gsplat_matches_cpu():
-    reason = _cuda_skip_reason()
-    if reason is not None:
-        pytest.skip(f"CUDA backend unavailable: {reason}")
+    _needs_cuda()
     g = _scene("mixed", torch.float32, seed=2)
     q, t = _pose(torch.float32)
     out_cpu = render(g, INTR, w2c_from_quat_trans(q, t), backend="cpu", near=NEAR)
-    gc = Gaussians(*(x.cuda() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-    out_gpu = render(gc, INTR, w2c_from_quat_trans(q.cuda(), t.cuda()), backend="cuda", near=NEAR)
+    out_gpu = render(_to_cuda(g), INTR, w2c_from_quat_trans(q.cuda(), t.cuda()), backend="cuda", near=NEAR)
     # gsplat uses the full EWA covariance, culls per axis at 3.33 sigma and evaluates pixels
     # outside a Gaussian's box in touched tiles: differences sit at alphas in [1/255, ~0.004].
     for name, a, b, scale in (("color", out_gpu.color, out_cpu.color, 1.0),
@@ -389,16 +392,6 @@ def test_gsplat_matches_cpu():
         diff = (a.cpu() - b).abs()
         assert float(diff.mean()) < 2e-3 * scale, f"{name}: mean abs diff {float(diff.mean()):.3g}"
         assert float(diff.max()) < 5e-2 * scale, f"{name}: max abs diff {float(diff.max()):.3g}"
-
-
-def _needs_cuda():
-    reason = _cuda_skip_reason()
-    if reason is not None:
-        pytest.skip(f"CUDA backend unavailable: {reason}")
-
-
-def _to_cuda(g: Gaussians) -> Gaussians:
-    return Gaussians(*(x.cuda() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
 
 
 @pytest.mark.cuda
@@ -432,7 +425,7 @@ def test_gsplat_gradients_agree_with_the_cpu_backend(case):
     g = _scene(case, torch.float32, seed=2)
     _, grads_cpu = _render_with_grads(g, "cpu", torch.float32)
 
-    params, q, t = _leaves(_to_cuda(g), torch.float32)
+    params, _, _ = _leaves(_to_cuda(g), torch.float32)
     q, t = (x.detach().cuda().requires_grad_() for x in _pose(torch.float32))
     out = render(Gaussians(*params), INTR, w2c_from_quat_trans(q, t), backend="cuda", near=NEAR)
     gen = torch.Generator().manual_seed(1)

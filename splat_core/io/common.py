@@ -29,7 +29,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
-from ..frame import Frame
+from ..frame import Frame, resize_to
 from .source import FrameSource
 
 RESOLUTIONS = ("depth", "color")
@@ -118,8 +118,6 @@ class IndexedCapture(FrameSource):
         return out
 
     def __getitem__(self, i: int) -> Frame:
-        import cv2
-
         n = len(self)
         if not isinstance(i, (int, np.integer)):
             raise TypeError(f"frame index must be an integer, got {type(i).__name__}")
@@ -143,13 +141,10 @@ class IndexedCapture(FrameSource):
                 raise InputError(f"{self._name(i, 'confidence')}: confidence map is {conf.shape[1]}x{conf.shape[0]}, "
                                  f"expected the depth size {depth.shape[1]}x{depth.shape[0]}")
             depth = np.where(conf >= self.min_confidence, depth, np.float32(0)).astype(np.float32)
-        w, h = self.size
-        if (color.shape[1], color.shape[0]) != (w, h):
-            shrink = w < color.shape[1]
-            color = cv2.resize(color, (w, h), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
-            color = np.clip(color, 0.0, 1.0)
-        if (depth.shape[1], depth.shape[0]) != (w, h):
-            depth = cv2.resize(depth, (w, h), interpolation=cv2.INTER_NEAREST)
+        intr = self.intrinsics
+        if color.shape[:2] != (intr.height, intr.width):
+            color = np.clip(resize_to(color, intr, False), 0.0, 1.0)
+        depth = resize_to(depth, intr, True)
         T = self._c2w[i] if self._c2w else None
         return Frame(i, float(self._timestamps[i]), np.ascontiguousarray(color, dtype=np.float32),
                      np.ascontiguousarray(depth, dtype=np.float32), self.intrinsics,
