@@ -43,6 +43,7 @@ class TrackingConfig:
     align_levels: int = 3                 # pyramid levels of that alignment
     align_passes: int = 1                 # renders (re-linearisations) of that alignment
     align_color_weight: float = 1.0       # photometric term's weight against point-to-plane depth
+    align_depth_noise: bool = False       # divide its depth residuals by a structured-light noise model sigma(z)
 
 
 @dataclass

@@ -124,7 +124,7 @@ class SplaTAM:
             aligned = align_to_map(g, color, depth, self.intrinsics, w2c, levels=tc.align_levels,
                                    iterations=tc.align_iterations, passes=tc.align_passes,
                                    color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold,
-                                   near=near)
+                                   near=near, depth_noise=tc.align_depth_noise)
             # Keep the alignment only if SplaTAM's own loss agrees (tracking.beats). The first Adam
             # iteration evaluates the aligned pose anyway, so the check rides on it when it can.
             fallback = (w2c_init, *loss_and_pixels(aligned.first_render, color_t, depth_t, tc))
