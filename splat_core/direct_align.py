@@ -41,7 +41,7 @@ from .render import Render, render
 class AlignResult:
     w2c: np.ndarray
     correspondences: int        # depth residuals in the last iteration at full resolution
-    rmse_depth: float           # their point-to-plane RMS (metres)
+    rmse_depth: float           # their point-to-plane RMS (metres; relative to 1 m with depth_noise)
     first_render: Render        # the map rendered at w2c_init (the caller reuses it)
 
 
