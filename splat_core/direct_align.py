@@ -14,13 +14,14 @@ Gauss-Newton, the way dense RGB-D odometry does, but frame-to-model:
 
 Only rendered pixels with silhouette > `silhouette` are used, the same rule as the tracking
 loss. Robust (Huber) weights apply. The solve runs coarse to fine over an image pyramid.
+The map renders again at the solved pose for `passes` > 1, so a large motion is re-linearised.
+`SplaTAM._track` keeps the result only where SplaTAM's own tracking loss per pixel agrees
+(lower than at the prediction), then polishes it with a few Adam iterations (tracking.py).
+
 With `depth_noise`, each depth residual is divided by the sensor's axial noise at the live
 point's depth, sigma(z) = 1.2 mm + 1.9 mm (z - 0.4 m)^2 (a Kinect v1 / structured-light model,
 Nguyen, Izadi & Lovell 2012), relative to sigma(1 m): a residual at 3 m is divided by 7.5, one
 at 0.5 m multiplied by 1.5, so the far, noisy half of a room no longer outvotes near surfaces.
-The map renders again at the solved pose for `passes` > 1, so a large motion is re-linearised.
-`SplaTAM._track` keeps the result only where SplaTAM's own tracking loss per pixel agrees
-(lower than at the prediction), then polishes it with a few Adam iterations (tracking.py).
 """
 
 from __future__ import annotations
