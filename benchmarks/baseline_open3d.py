@@ -1,7 +1,7 @@
 """Open3D baselines on the real sequences: what a classical RGB-D pipeline gets on the same data.
 
     python benchmarks/baseline_open3d.py [--data ../shared/data] [--sequences a,b,c]
-        [--methods dense,odometry] [--voxel-size 0.02] [--depth-max 3.0] [--max-frames N]
+        [--methods dense,odometry] [--voxel-size 0.02[,0.0058,...]] [--depth-max 3.0] [--max-frames N]
         [--device CPU:0]
 
 Needs the optional benchmark extra: `pip install -e ".[bench]"` (open3d). Prints one JSON
@@ -14,8 +14,8 @@ Methods
   dense     open3d.t.pipelines.slam.Model: frame-to-model tracking (point-to-plane ICP against
             the TSDF volume ray-cast at the previous pose), TSDF integration, ray-casting; the
             loop of Open3D's examples/python/t_reconstruction_system/dense_slam.py. Voxel size
-            --voxel-size (default 0.02 m), depth cut --depth-max (3.0 m), truncation 8 voxels,
-            depth_diff 0.07 m (Open3D's defaults).
+            --voxel-size (default 0.02 m; a comma-separated list runs each), depth cut
+            --depth-max (3.0 m), truncation 8 voxels, depth_diff 0.07 m (Open3D's defaults).
   odometry  frame-to-frame RGB-D odometry, open3d.pipelines.odometry.compute_rgbd_odometry with
             the hybrid (photometric + geometric) Jacobian, each frame registered to the previous
             one starting from identity, poses chained. A failed registration keeps the previous
@@ -154,7 +154,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=Path, default=DEFAULT_DATA)
     ap.add_argument("--sequences", default=",".join(DEFAULT_SEQUENCES))
     ap.add_argument("--methods", default="dense,odometry")
-    ap.add_argument("--voxel-size", type=float, default=0.02)
+    ap.add_argument("--voxel-size", default="0.02", help="TSDF voxel size(s) in metres, comma-separated")
     ap.add_argument("--block-count", type=int, default=None,
                     help="voxel blocks to allocate (default 10000 at >= 0.01 m voxels, else 40000)")
     ap.add_argument("--depth-max", type=float, default=3.0)
@@ -171,7 +171,10 @@ def main(argv=None) -> int:
     unknown = set(methods) - {"dense", "odometry"}
     if unknown:
         ap.error(f"unknown method(s) {sorted(unknown)}; choose from dense, odometry")
-    block_count = args.block_count or (10000 if args.voxel_size >= 0.01 else 40000)
+    try:
+        voxel_sizes = [float(v) for v in args.voxel_size.split(",") if v.strip()]
+    except ValueError:
+        ap.error(f"--voxel-size {args.voxel_size}: expected metres, comma-separated")
     info = machine() | {"open3d": o3d.__version__, "device": args.device}
     status = 0
     for name in [s.strip() for s in args.sequences.split(",") if s.strip()]:
@@ -181,11 +184,14 @@ def main(argv=None) -> int:
             status = 1
             continue
         colors, depths, intr, ref, io_s = load_frames(path, args.max_frames)
-        for method in methods:
+        runs = [("dense", v) for v in voxel_sizes] if "dense" in methods else []
+        runs += [("odometry", None)] if "odometry" in methods else []
+        for method, voxel_size in runs:
             if method == "dense":
+                block_count = args.block_count or (10000 if voxel_size >= 0.01 else 40000)
                 est, s_per_frame, failures = run_dense_slam(
-                    o3d, colors, depths, intr, args.voxel_size, args.depth_max, args.device, block_count)
-                extra = {"method": "open3d_dense_slam", "voxel_size": args.voxel_size, "block_count": block_count}
+                    o3d, colors, depths, intr, voxel_size, args.depth_max, args.device, block_count)
+                extra = {"method": "open3d_dense_slam", "voxel_size": voxel_size, "block_count": block_count}
             else:
                 est, s_per_frame, failures = run_rgbd_odometry(o3d, colors, depths, intr, args.depth_max)
                 extra = {"method": "open3d_rgbd_odometry_hybrid"}

@@ -3,6 +3,7 @@
     python benchmarks/slam.py --json                               # synthetic + ../shared/data
     python benchmarks/slam.py --sequences synthetic --presets cpu --max-frames 20
     python benchmarks/slam.py --json --open3d                     # + Open3D baselines side by side
+                                                                  #   (dense SLAM at 2 cm and 5.8 mm voxels)
 
 Each run is a separate `splatam run` process (so peak memory is per run) writing into
 --work (default: a temporary folder); figures come from its metrics.json.
@@ -68,6 +69,8 @@ def main() -> None:
     p.add_argument("--work", default=None, help="folder for run outputs (kept; reruns resume)")
     p.add_argument("--open3d", action="store_true",
                    help="also run benchmarks/baseline_open3d.py on the real sequences (needs the bench extra)")
+    p.add_argument("--open3d-voxels", default="0.02,0.0058",
+                   help="TSDF voxel sizes of the Open3D dense SLAM runs (default: the issue's two, %(default)s)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
 
@@ -91,7 +94,8 @@ def main() -> None:
                 print(json.dumps(row), flush=True)
     real = [s for s in args.sequences.split(",") if s != "synthetic"]
     if args.open3d and real:
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "baseline_open3d.py"), "--sequences", ",".join(real)]
+        cmd = [sys.executable, str(ROOT / "benchmarks" / "baseline_open3d.py"), "--sequences", ",".join(real),
+               "--voxel-size", args.open3d_voxels]
         if args.max_frames:
             cmd += ["--max-frames", str(args.max_frames)]
         proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
