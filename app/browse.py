@@ -63,6 +63,18 @@ def _intrinsics_from(intr) -> Intrinsics | None:
     return None
 
 
+def near_plane_of(path) -> float:
+    """The near plane a run was made with (its config.yaml), else the engine's default."""
+    import yaml
+
+    from splat_core.config import Config
+    config = Path(path) / "config.yaml" if Path(path).is_dir() else Path(path).parent / "config.yaml"
+    try:
+        return float(yaml.safe_load(config.read_text())["near_plane"])
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError):
+        return Config.near_plane
+
+
 def load_run(path) -> MapSnapshot:
     """A browse-mode snapshot of RUN_DIR (map.ply + trajectory.txt [+ checkpoint/]) or MAP.ply."""
     path = Path(path)
@@ -100,7 +112,7 @@ def load_run(path) -> MapSnapshot:
     else:
         gaussians = read_map(path)
     return MapSnapshot(
-        version=1, state="browse", frame_index=len(c2w) - 1, total_frames=len(c2w), map_version=1,
+        version=1, state="browse", near_plane=near_plane_of(path), frame_index=len(c2w) - 1, total_frames=len(c2w), map_version=1,
         gaussians=freeze_gaussians(gaussians), keyframes=keyframes, intrinsics=intrinsics,
         timestamps=frozen(timestamps), estimated_c2w=frozen(c2w), history={},
         ate_cm=float(ate) if ate is not None else None, message=str(path), out_dir=None)

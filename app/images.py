@@ -35,15 +35,6 @@ def colorize_silhouette(alpha: np.ndarray) -> np.ndarray:
     return np.repeat(to_uint8(np.asarray(alpha, np.float32))[..., None], 3, axis=2)
 
 
-def psnr(a: np.ndarray, b: np.ndarray, mask: np.ndarray | None = None) -> float:
-    """PSNR in dB of two float images in [0, 1] (optionally over a pixel mask)."""
-    diff = (np.clip(np.asarray(a, np.float64), 0, 1) - np.clip(np.asarray(b, np.float64), 0, 1)) ** 2
-    if mask is not None:
-        diff = diff[np.asarray(mask, bool)]
-    mse = float(diff.mean()) if diff.size else 0.0
-    return float("inf") if mse <= 1e-12 else float(-10.0 * np.log10(mse))
-
-
 def labelled(img: np.ndarray, text: str) -> np.ndarray:
     """Write a small label in the top-left corner (black outline, white text)."""
     import cv2

@@ -64,6 +64,7 @@ class MapSnapshot:
     gaussians: dict                        # raw arrays as GaussianMap.to_numpy() (read-only)
     keyframes: tuple = ()                  # KeyframeView, in insertion order
     intrinsics: Intrinsics | None = None   # working resolution
+    near_plane: float = 0.01               # the run's config.near_plane: every render of this map uses it
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
     estimated_c2w: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
     reference_c2w: np.ndarray | None = None  # T x 4 x 4, NaN where a frame has none

@@ -26,7 +26,9 @@ from splat_core.camera import Intrinsics, invert_pose
 from splat_core.gaussians import Gaussians
 
 from .assets import WebAssets, apply_theme, load_assets
-from .images import colorize_depth, depth_max_of, mosaic, psnr, to_uint8
+from splat_core.metrics import psnr
+
+from .images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from .snapshot import MapSnapshot
 from .viewer_panels import Panels
@@ -295,7 +297,7 @@ class ViewerApp:
     def _render_map(self, intr: Intrinsics, w2c: np.ndarray, snap: MapSnapshot | None = None,
                     birth_limit: int | None = None):
         """Render the snapshot's map (Gaussians born up to the scrubbed keyframe) or None."""
-        from splat_core.render import render
+        from splat_core.render import Renderer
 
         snap = snap or self._snapshot
         if snap is None or snap.num_gaussians == 0:
@@ -312,8 +314,8 @@ class ViewerApp:
                                   t(g["logit_opacities"]), t(g["log_scales"]))
             self._render_cache = cache = (key, gaussians)
         with torch.no_grad():
-            return render(cache[1], intr, torch.as_tensor(w2c, dtype=torch.float32),
-                          backend=self.render_backend)
+            return Renderer(snap.near_plane, self.render_backend).render(
+                cache[1], intr, torch.as_tensor(w2c, dtype=torch.float32))
 
     # ------------------------------------------------------------------ export
     def export_files(self, what: str) -> tuple[str, bytes, Path | None]:

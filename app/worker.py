@@ -16,7 +16,8 @@ import traceback
 
 import numpy as np
 
-from .images import psnr
+from splat_core.metrics import psnr
+
 from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, empty_gaussians, freeze_gaussians,
                        frozen, make_thumbnail)
 
@@ -150,7 +151,7 @@ class SlamWorker(threading.Thread):
         live = self._render_live(r) if self.live_render else LiveView(
             int(r.index), frozen(r.frame.color), frozen(r.frame.depth))
         self._live = live
-        seconds = float((r.tracking_seconds or 0.0) + (r.mapping_seconds or 0.0))
+        seconds = float(pipe.records[-1]["wall_seconds"])
         ate = pipe.ate_cm()
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
                            ("seconds", seconds), ("psnr", live.psnr), ("num_gaussians", r.num_gaussians)):
@@ -163,15 +164,15 @@ class SlamWorker(threading.Thread):
         try:
             import torch
 
-            from splat_core.render import render
+            from splat_core.render import Renderer
 
             intr = frame.intrinsics
             if intr.width > self.live_max_width:
                 w = self.live_max_width
                 intr = intr.scaled(w, max(1, int(round(intr.height * w / intr.width))))
-            with torch.no_grad():
-                out = render(self.pipeline.slam.map.tensors(detach=True), intr, r.w2c,
-                             backend=self.render_backend)
+            renderer = Renderer(self.pipeline.config.near_plane, self.render_backend)
+            with torch.no_grad():   # the newest published map: never a tensor the mapper is stepping
+                out = renderer.render(self.pipeline.map_version().gaussians, intr, r.w2c)
             rc, rd, ra = (t.detach().cpu().numpy() for t in out)
             import cv2
 
@@ -186,7 +187,7 @@ class SlamWorker(threading.Thread):
     # ------------------------------------------------------------------ snapshots
     def _keyframes(self) -> tuple:
         views = []
-        for kf in list(self.pipeline.slam.keyframes):
+        for kf in self.pipeline.keyframes():
             view = self._keyframe_views.get(kf.frame_index)
             if view is None:
                 c2w = np.linalg.inv(np.asarray(kf.w2c, np.float64))
@@ -198,10 +199,9 @@ class SlamWorker(threading.Thread):
 
     def _publish(self, force_map: bool = False, message: str = "") -> None:
         pipe = self.pipeline
-        slam = getattr(pipe, "slam", None)
         now = time.monotonic()
-        if slam is not None and (force_map or now - self._map_copied_at >= self.map_interval_s):
-            self._map_arrays = freeze_gaussians(slam.map.to_numpy())
+        if force_map or now - self._map_copied_at >= self.map_interval_s:
+            self._map_arrays = freeze_gaussians(pipe.map_version().to_numpy())
             self._map_version += 1
             self._map_copied_at = now
         est = pipe.estimated_c2w() if self._last_frame_index >= 0 else []
@@ -219,8 +219,7 @@ class SlamWorker(threading.Thread):
                 version=self._version, state=self._state, frame_index=self._last_frame_index,
                 total_frames=int(pipe.total), map_version=self._map_version,
                 gaussians=self._map_arrays,
-                keyframes=self._keyframes() if slam is not None else (),
-                intrinsics=getattr(slam, "intrinsics", None),
+                keyframes=self._keyframes(), intrinsics=pipe.intrinsics, near_plane=float(pipe.config.near_plane),
                 timestamps=frozen(np.asarray(self._timestamps, np.float64)),
                 estimated_c2w=frozen(np.stack(est) if len(est) else np.zeros((0, 4, 4))),
                 reference_c2w=frozen(reference), history=history, live=self._live,

@@ -44,6 +44,10 @@ class TrackingConfig:
     align_passes: int = 1                 # renders (re-linearisations) of that alignment
     align_color_weight: float = 1.0       # photometric term's weight against point-to-plane depth
     align_depth_noise: bool = False       # divide its depth residuals by a structured-light noise model sigma(z)
+    align_stride: int = 1                 # that alignment uses every n-th live pixel (x and y) at full resolution
+    pixels: str = "all"                   # pixels of the tracking loss: all | random | gradient | depth_edges (pixel_selection.py)
+    pixel_tile: int = 8                   # ... chosen per pixel_tile x pixel_tile block
+    pixels_per_tile: int = 1
 
 
 @dataclass
@@ -81,6 +85,11 @@ class KeyframeConfig:
 
 
 @dataclass
+class LiveConfig:
+    max_lag: int = 2                      # frames the live engine's tracker may run ahead of the newest mapped frame (live.py)
+
+
+@dataclass
 class Config:
     name: str = "splatam"
     resolution: list | None = None        # [width, height] working resolution; None = capture's
@@ -95,6 +104,7 @@ class Config:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
+    live: LiveConfig = field(default_factory=LiveConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -103,10 +113,15 @@ class Config:
         checks = [
             (self.tracking.iterations >= 0, "tracking.iterations must be >= 0"),
             (self.tracking.align_iterations >= 0, "tracking.align_iterations must be >= 0"),
+            (self.tracking.pixels in ("all", "random", "gradient", "depth_edges"),
+             "tracking.pixels must be all, random, gradient or depth_edges"),
+            (self.tracking.pixel_tile >= 1 and self.tracking.pixels_per_tile >= 1 and self.tracking.align_stride >= 1,
+             "tracking.pixel_tile, tracking.pixels_per_tile and tracking.align_stride must be >= 1"),
             (self.tracking.align_levels >= 1 and self.tracking.align_passes >= 1,
              "tracking.align_levels and tracking.align_passes must be >= 1"),
             (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
+            (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
             (self.keyframes.selection in ("overlap", "random"), "keyframes.selection must be overlap or random"),

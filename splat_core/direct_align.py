@@ -89,7 +89,8 @@ def _normals(points: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndar
 class _Level:
     """One pyramid level of the rendered model and the live frame."""
 
-    def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid, live_depth, live_grey):
+    def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid, live_depth, live_grey,
+                 live_stride: int = 1):
         self.intr = intr
         self.model_points = backproject(np.where(model_valid, model_depth, 0.0), intr)
         self.model_normals, self.model_ok = _normals(self.model_points, model_valid)
@@ -99,11 +100,15 @@ class _Level:
         self.model_grad = np.ascontiguousarray(np.stack([gx, gy], axis=-1))
         self.color_ok = cv2.erode(model_valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
         live_valid = live_depth > 0
+        if live_stride > 1:   # sparse tracking: every live_stride-th pixel in x and y
+            grid = np.zeros_like(live_valid)
+            grid[::live_stride, ::live_stride] = True
+            live_valid &= grid
         self.live_points = np.ascontiguousarray(backproject(live_depth, intr)[live_valid])
         self.live_grey = np.ascontiguousarray(live_grey[live_valid])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _linearise(live_points, live_grey, X, fx, fy, cx, cy, model_points, model_normals, model_ok,
                model_grey, model_grad, color_ok, max_distance):
     """Residuals and Jacobians (w.r.t. a left twist (v, w) on X) of every live point.
@@ -194,8 +199,10 @@ def _gauss_newton_step(level: _Level, X: np.ndarray, color_weight: float, max_di
 def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, intr: Intrinsics,
                  w2c_init: np.ndarray, *, levels: int = 3, iterations: int = 10, passes: int = 1,
                  color_weight: float = 1.0, silhouette: float = 0.99, near: float = 0.01,
-                 max_distance: float = 0.1, depth_noise: bool = False) -> AlignResult:
+                 max_distance: float = 0.1, depth_noise: bool = False, live_stride: int = 1) -> AlignResult:
     """Solve for the w2c of (colour HxWx3, depth HxW at `intr`) against the map rendered near w2c_init.
+
+    live_stride > 1 uses every live_stride-th live pixel (in x and y) at the finest level only.
 
     Falls back to w2c_init when the map explains too little of the frame (fewer than 50 residuals)."""
     w2c, correspondences, rmse = np.asarray(w2c_init, dtype=np.float64), 0, float("inf")
@@ -214,7 +221,8 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
             li = intr if level == 0 else intr.scaled(max(8, round(intr.width * s)), max(8, round(intr.height * s)))
             lvl = _Level(li, resize_to(model_depth, li, True), resize_to(model_grey, li, False),
                          resize_to(valid.astype(np.uint8), li, True).astype(bool),
-                         resize_to(depth.astype(np.float64), li, True), resize_to(live_grey, li, False))
+                         resize_to(depth.astype(np.float64), li, True), resize_to(live_grey, li, False),
+                         live_stride if level == 0 else 1)
             for _ in range(iterations):
                 dX, correspondences, rmse = _gauss_newton_step(lvl, X, color_weight, max_distance, depth_noise)
                 X = dX @ X

@@ -22,7 +22,7 @@ from .camera import Intrinsics
 from .config import MappingConfig
 from .gaussians import PARAM_NAMES, GaussianMap
 from .losses import ssim
-from .render import render
+from .render import Renderer
 
 
 @dataclass
@@ -72,9 +72,13 @@ def frustum_mask(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics
 
 
 def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: MappingConfig,
-                 iterations: int, scene_radius: float, rng: np.random.Generator, near: float = 0.01) -> dict:
-    """Run `iterations` mapping steps on `m` in place; returns counts and the last loss."""
-    removed = m.prune(prune_mask(m, config, scene_radius))          # iteration 0's pruning
+                 iterations: int, scene_radius: float, rng: np.random.Generator,
+                 renderer: Renderer = Renderer()) -> dict:
+    """Run `iterations` mapping steps on `m` in place; returns counts and the last loss.
+
+    Iteration 0's pruning is the caller's (SplaTAM.prune); this prunes every prune_every steps."""
+    near = renderer.near
+    removed = 0
     if iterations == 0 or len(m) == 0 or not window:
         return {"pruned": removed, "loss": None, "optimised": 0}
 
@@ -94,7 +98,7 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
     loss_value = None
     for i in range(iterations):
         view = window[int(rng.integers(len(window)))]
-        out = render(sub, intr, view.w2c, near=near)
+        out = renderer.render(sub, intr, view.w2c)
         loss = mapping_loss(out, view, config)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()

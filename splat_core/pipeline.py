@@ -17,21 +17,26 @@ import platform
 import resource
 import time
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import torch
 import yaml
 
 from . import metrics as M
-from .camera import invert_pose, is_finite_pose
+from .camera import Intrinsics, invert_pose, is_finite_pose
 from .config import Config
 from .errors import InputError
 from .frame import Frame, resize_frame
 from .io import checkpoint
 from .io.atomic import write_text_atomic
 from .io.source import FrameSource
-from .render import render
-from .slam import FrameResult, SplaTAM
+
+from .keyframes import Keyframe
+from .live import LiveEngine
+from .slam import FrameResult, MapVersion, SplaTAM
+
+ENGINES = ("sequential", "live")
 
 
 def open_input(path=None, format: str | None = None, **options) -> FrameSource:
@@ -62,11 +67,37 @@ def check_frame(frame: Frame, where: str) -> None:
         raise InputError(f"{where}: no valid depth in this frame")
 
 
+class SlamRun(Protocol):
+    """What the app (the worker thread, `splatam run`) may use of a run: nothing else.
+
+    `step()` and `finish()` are called by one thread only; `map_version()`, `keyframes()` and the
+    trajectory getters may be read between steps by that thread (the live engine's versions are
+    safe to read from any thread)."""
+
+    total: int | None           # frames to process (None: a live stream of unknown length)
+    out_dir: Path | None
+    config: Config
+    intrinsics: Intrinsics      # working resolution
+    records: list[dict]         # per processed frame: wall_seconds, tracking_loss, ...
+
+    def step(self) -> FrameResult | None: ...
+    def finish(self) -> dict: ...
+    def map_version(self) -> MapVersion: ...
+    def keyframes(self) -> list[Keyframe]: ...
+    def estimated_c2w(self) -> list[np.ndarray]: ...
+    def reference_c2w(self) -> list[np.ndarray | None] | None: ...
+    def ate_cm(self) -> float | None: ...
+
+
 class Pipeline:
     def __init__(self, source: FrameSource, config: Config, out_dir=None, *, device="auto",
-                 max_frames: int | None = None, stride: int = 1, resume: bool = False):
+                 max_frames: int | None = None, stride: int = 1, resume: bool = False,
+                 engine: str = "sequential"):
         if stride < 1:
             raise InputError(f"--stride {stride}: expected a positive integer")
+        if engine not in ENGINES:
+            raise InputError(f"--engine {engine}: expected one of {', '.join(ENGINES)}")
+        self.engine = engine
         self.notes: list[str] = []             # adjustments made for this input, shown by the CLI
         if not source.registered and (config.tracking.color_weight or config.tracking.align_color_weight):
             # Colour a few pixels off the depth pulls the pose away from where the depth puts it
@@ -86,12 +117,30 @@ class Pipeline:
         self.intrinsics = native.scaled(int(width), int(height))
         self.slam = SplaTAM(config, self.intrinsics, device=self.device)
         self.slam.total_frames = self.total
-        self.results: list[FrameResult] = []
+        self.live: LiveEngine | None = None     # the mapper thread of the live engine, once started
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
+        self._last_step = None
         if resume:
             self._resume()
+
+    def _live_engine(self) -> LiveEngine:
+        if self.live is None:
+            self.live = LiveEngine(self.slam, self.config.live)
+        return self.live
+
+    def keyframes(self) -> list[Keyframe]:
+        return list(self.slam.keyframes)
+
+    def keyframes(self) -> list[Keyframe]:
+        return list(self.slam.keyframes)
+
+    def map_version(self) -> MapVersion:
+        """The newest map that may be read from any thread (live: the mapper's latest version;
+        sequential: a copy of the map made now, by the stepping thread)."""
+        version = self.slam.latest_version() if self.live is not None else None
+        return version if version is not None else self.slam.publish(len(self.slam.w2cs) - 1)
 
     # ------------------------------------------------------------------ frames
     def frame(self, k: int) -> Frame:
@@ -115,12 +164,18 @@ class Pipeline:
             if ref is None:
                 raise InputError(f"frame {frame.index}: tracking.use_reference_poses needs a reference pose")
             given = invert_pose(ref)
-        result = self.slam.process(frame, given)
+        if self.engine == "live":
+            result = self._live_engine().process(frame, given)
+        else:
+            result = self.slam.process(frame, given)
         result.frame = frame
-        self.results.append(result)
+        now = time.perf_counter()
+        wall = now - (self._last_step if self._last_step is not None else now - result.tracking_seconds
+                      - result.mapping_seconds)
+        self._last_step = now
         self.references.append(frame.c2w_ref)
         self.records.append(dict(
-            index=k, source_index=frame.index, timestamp=frame.timestamp,
+            index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall,
             tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
@@ -158,13 +213,15 @@ class Pipeline:
 
     # ------------------------------------------------------------------ checkpoints
     def _meta(self) -> dict:
-        return dict(frames_done=len(self.records), total=self.total, indices=self.indices,
+        return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine,
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
                     elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
+        if self.live is not None:
+            self.live.drain()           # a consistent state: every tracked frame is in the map
         checkpoint.save(self.out_dir / "checkpoint", self.slam.state_arrays(), self._meta())
 
     def _resume(self) -> None:
@@ -177,6 +234,8 @@ class Pipeline:
                              "(--input/--stride/--max-frames must match the original run)")
         if ckpt.meta.get("config") != self.config.to_dict():
             raise InputError(f"{self.out_dir}: the checkpoint was made with another config")
+        if ckpt.meta.get("engine", "sequential") != self.engine:
+            raise InputError(f"{self.out_dir}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
         self.slam.load_state_arrays(ckpt.arrays)
         self.records = list(ckpt.meta["records"])
         self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
@@ -192,7 +251,7 @@ class Pipeline:
         for k in picks:
             frame = self.frame(k)
             with torch.no_grad():
-                out = render(g, self.intrinsics, self.slam.w2cs[k], near=self.config.near_plane)
+                out = self.slam.renderer.render(g, self.intrinsics, self.slam.w2cs[k])
             color = torch.as_tensor(frame.color, device=out.color.device)
             depth = torch.as_tensor(frame.depth, device=out.depth.device)
             psnrs.append(float(M.psnr(out.color, color)))
@@ -205,12 +264,15 @@ class Pipeline:
     def metrics(self) -> dict:
         track = [r["tracking_seconds"] for r in self.records]
         mapping = [r["mapping_seconds"] for r in self.records]
+        wall = [r["wall_seconds"] for r in self.records if "wall_seconds" in r]
         out = dict(
-            frames=len(self.records), num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
+            engine=self.engine, frames=len(self.records), num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
             ate_rmse_cm=self.ate_cm(),
             tracking_seconds_per_frame=float(np.mean(track)) if track else None,
             mapping_seconds_per_frame=float(np.mean(mapping)) if mapping else None,
             seconds_per_frame=float(np.mean(np.add(track, mapping))) if track else None,
+            wall_seconds_per_frame=float(np.mean(wall)) if wall else None,
+            wall_seconds_per_frame_median=float(np.median(wall[1:])) if len(wall) > 1 else None,
             peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             device=str(self.device), machine=platform.processor() or platform.machine(),
             resolution=[self.intrinsics.width, self.intrinsics.height], config=self.config.name,
@@ -224,6 +286,11 @@ class Pipeline:
                 out["ate_mean_legacy_cm"] = 100.0 * float(M.ate_mean_legacy(np.array(est), np.array(ref)))
         if self.device.type == "cuda":
             out["peak_gpu_memory_mb"] = torch.cuda.max_memory_allocated() / 2**20
+        if self.live is not None:
+            live = self.live
+            out["live"] = dict(max_lag=self.config.live.max_lag, mapper_steps=live.mapper_steps,
+                               mapper_seconds=live.mapper_seconds, tracker_wait_seconds=live.wait_seconds,
+                               gaussians_added=live.num_added, gaussians_pruned=live.num_pruned)
         out.update(self.evaluate())
         out["per_frame"] = self.records
         return out
@@ -233,6 +300,13 @@ class Pipeline:
         from .io.ply import write_ply
         from .io.trajectory import write_tum_trajectory
 
+        if self.live is not None:
+            self.live.drain()
+            self.live.close()
+        # Time to the end of mapping counts: the live engine's last frames are mapped only now.
+        if self.records and self._last_step is not None:
+            self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
+            self._last_step = None
         result = self.metrics()
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,17 +1,32 @@
-"""Tracking: optimise one frame's camera pose against the fixed map.
+"""Tracking: one frame's camera pose against the fixed map, as one object (`Tracker`).
 
-Only the 7 pose numbers (w2c quaternion + translation) are optimised, with a small Adam. The
-loss uses the pixels the map already explains (silhouette > 0.99) with valid depth:
+    tracker = Tracker(config.tracking, intrinsics, renderer)
+    result = tracker.track(map_gaussians, color, depth, w2c_predicted)
+
+Three steps, each start pose a named `Candidate` with its loss and pixel count, compared by one
+rule (`beats`):
+    align    Gauss-Newton alignment of the frame to the map rendered at the prediction
+             (direct_align.py), optional (tracking.align_iterations)
+    accept   keep the aligned pose only if SplaTAM's own loss agrees it beats the prediction
+    polish   SplaTAM's Adam iterations on the 7 pose numbers (w2c quaternion + translation),
+             coarse to fine (a stage with no iterations is skipped)
+
+The loss uses the pixels the map already explains (silhouette > 0.99) with valid depth:
     L = w_d sum |D - D_hat| + w_c sum |C - C_hat|        (sums, as in SplaTAM)
-The best pose is the one with the lowest loss, snapshotted *before* the step that follows it
-(the original snapshots after stepping; `compat_post_step_candidate` reproduces that). A pose
-qualifies only if it still sees at least half as many loss pixels as the starting pose: a sum
-over fewer pixels is smaller without being better, and a pose that looks away from the map
-would otherwise "win" with a loss of zero.
+With tracking.pixels != "all" it is evaluated on a few pixels per tile only (pixel_selection.py),
+rendered by the sparse-pixel path (render_pixels): the same loss on a subset, at a fraction of the
+cost. The best pose is the one with the lowest loss, snapshotted *before* the step that follows it
+(the original snapshots after stepping; `compat_post_step_candidate` reproduces that).
+
+A pose beats another with a lower loss per pixel over at least half as many pixels: a sum over
+fewer pixels is smaller without being better, and a pose that looks away from the map would
+otherwise "win" with a loss of zero.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,20 +34,63 @@ import torch
 
 from .camera import Intrinsics, pose_matrix, quat_to_rotmat_np, rotmat_to_quat, w2c_from_quat_trans
 from .config import TrackingConfig
+from .direct_align import align_to_map
+from .frame import resize_to
 from .gaussians import Gaussians
-from .render import render
+from .mapping import frustum_mask
+from .pixel_selection import choose_pixels
+from .render import Render, Renderer
+
+
+@dataclass
+class Candidate:
+    """A pose with its tracking loss (the sum) over `pixels` loss pixels of one observation."""
+
+    name: str             # "prediction", "aligned", "polished"
+    w2c: np.ndarray
+    loss: float
+    pixels: int
+
+
+def beats(a: Candidate, b: Candidate) -> bool:
+    """a beats b with a lower loss per pixel over at least half as many pixels."""
+    return 2 * a.pixels >= b.pixels and a.loss * b.pixels <= b.loss * a.pixels
 
 
 @dataclass
 class TrackResult:
     w2c: np.ndarray
-    loss: float           # best loss (the sum above)
+    loss: float | None    # best loss (the sum above); None when nothing was evaluated
     iterations: int
     valid_pixels: int     # pixels in the loss mask at the best pose
+    start: str = "prediction"   # the candidate the polish started from
 
 
-def tracking_loss(rendered, color: torch.Tensor, depth: torch.Tensor, config: TrackingConfig):
-    """(loss, mask) with mask = valid depth and silhouette above the threshold (detached)."""
+@dataclass
+class Observation:
+    """The frame at one resolution, with the pixels the loss uses (None = all)."""
+
+    intr: Intrinsics
+    color: torch.Tensor   # H x W x 3, or P x 3 at `pixels`
+    depth: torch.Tensor   # H x W, or P
+    pixels: np.ndarray | None = None
+
+    def render(self, renderer: Renderer, gaussians: Gaussians, w2c) -> Render:
+        if self.pixels is None:
+            return renderer.render(gaussians, self.intr, w2c)
+        return renderer.pixels(gaussians, self.intr, w2c, self.pixels)
+
+    def gather(self, dense: Render) -> Render:
+        """A dense render at `intr` reduced to this observation's pixels."""
+        if self.pixels is None:
+            return dense
+        x, y = self.pixels[:, 0], self.pixels[:, 1]
+        return Render(dense.color[y, x], dense.depth[y, x], dense.alpha[y, x])
+
+
+def tracking_loss(rendered: Render, color: torch.Tensor, depth: torch.Tensor, config: TrackingConfig):
+    """(loss, mask, depth term) with mask = valid depth and silhouette above the threshold (detached).
+    Works on images (H x W) and on pixel lists (P) alike."""
     mask = (depth > 0) & (rendered.alpha.detach() > config.silhouette_threshold)
     error = torch.abs(depth - rendered.depth)
     if config.outlier_factor is not None and bool(mask.any()):
@@ -44,53 +102,43 @@ def tracking_loss(rendered, color: torch.Tensor, depth: torch.Tensor, config: Tr
     return config.depth_weight * depth_term + config.color_weight * color_term, mask, depth_term
 
 
-def loss_and_pixels(rendered, color: torch.Tensor, depth: torch.Tensor, config: TrackingConfig) -> tuple[float, int]:
-    """The tracking loss of a rendering (no gradient) and the number of pixels in it."""
+def candidate(name: str, w2c: np.ndarray, rendered: Render, obs: Observation, config: TrackingConfig) -> Candidate:
+    """The Candidate of a pose from its rendering of `obs` (no gradient)."""
     with torch.no_grad():
-        loss, mask, _ = tracking_loss(rendered, color, depth, config)
-        return float(loss), int(mask.sum())
+        loss, mask, _ = tracking_loss(rendered, obs.color, obs.depth, config)
+        return Candidate(name, np.asarray(w2c, dtype=np.float64), float(loss), int(mask.sum()))
 
 
-def evaluate_loss(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
-                  w2c: np.ndarray, config: TrackingConfig, near: float = 0.01) -> tuple[float, int]:
-    """The tracking loss of one pose (no optimisation) and the number of pixels in it."""
-    with torch.no_grad():
-        return loss_and_pixels(render(gaussians, intr, w2c, near=near), color, depth, config)
+def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Candidate | np.ndarray,
+           config: TrackingConfig, rival: Candidate | None = None) -> TrackResult:
+    """SplaTAM's Adam iterations on the pose, from `start` (a Candidate or a w2c).
 
-
-def beats(loss: float, pixels: int, loss_ref: float, pixels_ref: int) -> bool:
-    """A pose beats a reference pose with a lower loss per pixel over at least half as many pixels."""
-    return 2 * pixels >= pixels_ref and loss * pixels_ref <= loss_ref * pixels
-
-
-def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: Intrinsics,
-          w2c_init: np.ndarray, config: TrackingConfig, near: float = 0.01,
-          fallback: tuple[np.ndarray, float, int] | None = None) -> TrackResult:
-    """Optimise the w2c pose of an observation (colour H x W x 3, depth H x W at `intr`).
-
-    fallback: (w2c, loss, pixels) of another start, its loss computed at `intr` (e.g. the
-    prediction that an alignment produced w2c_init from). If w2c_init does not beat it (`beats`),
-    the optimisation starts from the fallback instead; the check costs no extra rendering."""
+    rival: another start whose loss was computed on `obs` (e.g. the prediction an alignment began
+    from). Adam's first iteration evaluates `start` anyway; if it does not beat the rival, the
+    optimisation starts from the rival instead, at no extra rendering."""
+    w2c_start = start.w2c if isinstance(start, Candidate) else np.asarray(start, dtype=np.float64)
+    start_name = start.name if isinstance(start, Candidate) else "prediction"
     dtype, device = gaussians.means.dtype, gaussians.means.device
-    q = torch.tensor(rotmat_to_quat(w2c_init[:3, :3]), dtype=dtype, device=device, requires_grad=True)
-    t = torch.tensor(w2c_init[:3, 3], dtype=dtype, device=device, requires_grad=True)
+    q = torch.tensor(rotmat_to_quat(w2c_start[:3, :3]), dtype=dtype, device=device, requires_grad=True)
+    t = torch.tensor(w2c_start[:3, 3], dtype=dtype, device=device, requires_grad=True)
     optimizer = torch.optim.Adam([{"params": [q], "lr": config.lr_rotation},
                                   {"params": [t], "lr": config.lr_translation}])
     best = (float("inf"), q.detach().clone(), t.detach().clone(), 0)
     budget, extended, done = config.iterations, False, 0
     while done < budget:
-        w2c = w2c_from_quat_trans(q, t)
-        out = render(gaussians, intr, w2c, near=near)
-        loss, mask, depth_term = tracking_loss(out, color, depth, config)
+        out = obs.render(renderer, gaussians, w2c_from_quat_trans(q, t))
+        loss, mask, depth_term = tracking_loss(out, obs.color, obs.depth, config)
         value, valid = float(loss.detach()), int(mask.sum())
-        if fallback is not None:
-            w2c_fb, loss_fb, valid_fb = fallback
-            fallback = None
-            if not beats(value, valid, loss_fb, valid_fb):
+        if rival is not None:
+            here = Candidate(start_name, w2c_start, value, valid)
+            if not beats(here, rival):
+                start_name = rival.name
                 with torch.no_grad():
-                    q.copy_(torch.as_tensor(rotmat_to_quat(w2c_fb[:3, :3]), dtype=dtype))
-                    t.copy_(torch.as_tensor(w2c_fb[:3, 3], dtype=dtype))
+                    q.copy_(torch.as_tensor(rotmat_to_quat(rival.w2c[:3, :3]), dtype=dtype))
+                    t.copy_(torch.as_tensor(rival.w2c[:3, 3], dtype=dtype))
+                rival = None
                 continue
+            rival = None
         if done == 0:
             min_valid = max(1, valid // 2)
         if valid < min_valid:
@@ -115,4 +163,80 @@ def track(gaussians: Gaussians, color: torch.Tensor, depth: torch.Tensor, intr: 
     _, q_best, t_best, valid = best
     w2c = pose_matrix(quat_to_rotmat_np(q_best.cpu().numpy().astype(np.float64)),
                       t_best.cpu().numpy().astype(np.float64))
-    return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid)
+    return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid, start=start_name)
+
+
+class Tracker:
+    """align -> accept -> polish for one frame at a time (see the module docstring)."""
+
+    def __init__(self, config: TrackingConfig, intrinsics: Intrinsics, renderer: Renderer, seed: int = 0,
+                 device="cpu", dtype=torch.float32):
+        self.config, self.intrinsics, self.renderer = config, intrinsics, renderer
+        self.device, self.dtype = torch.device(device), dtype
+        self.rng = np.random.default_rng([seed, 1])    # pixel choice; its own stream (resume)
+        scale = lambda s: intrinsics if s == 1 else intrinsics.scaled(  # noqa: E731
+            max(1, round(intrinsics.width * s)), max(1, round(intrinsics.height * s)))
+        tc = config
+        self.stages = [(scale(s), dataclasses.replace(tc, iterations=n)) for s, n in
+                       ((tc.coarse_scale, tc.coarse_iterations), (tc.resolution_scale, tc.iterations)) if n > 0]
+
+    # -------------------------------------------------------------- one frame
+    def track(self, gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, w2c_predicted: np.ndarray) -> TrackResult:
+        """The pose of (colour H x W x 3, depth H x W at the tracker's intrinsics) against the map."""
+        tc = self.config
+        g = self.nearby(gaussians, w2c_predicted)
+        observations = [self.observe(color, depth, intr) for intr, _ in self.stages]
+        start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
+        rival = None
+        if tc.align_iterations > 0:
+            aligned = align_to_map(g, color, depth, self.intrinsics, start, levels=tc.align_levels,
+                                   iterations=tc.align_iterations, passes=tc.align_passes,
+                                   color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold,
+                                   near=self.renderer.near, depth_noise=tc.align_depth_noise,
+                                   live_stride=tc.align_stride)
+            full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
+                else self.observe(color, depth, self.intrinsics)
+            prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
+            if observations and full is observations[0]:
+                # Accept rides on the polish's first iteration, which evaluates the aligned pose anyway.
+                start, rival = Candidate("aligned", aligned.w2c, float("nan"), 0), prediction
+            else:
+                with torch.no_grad():
+                    at_aligned = candidate("aligned", aligned.w2c, full.render(self.renderer, g, aligned.w2c), full, tc)
+                start = at_aligned if beats(at_aligned, prediction) else prediction
+        if not self.stages:
+            if isinstance(start, Candidate):
+                return TrackResult(start.w2c, start.loss, 0, start.pixels, start.name)
+            return TrackResult(start, None, 0, 0, "prediction")
+        iterations = 0
+        for obs, (_, stage_config) in zip(observations, self.stages):
+            result = polish(self.renderer, g, obs, start, stage_config, rival)
+            iterations += result.iterations
+            start, rival = Candidate(result.start, result.w2c, result.loss, result.valid_pixels), None
+        return dataclasses.replace(result, iterations=iterations)
+
+    # -------------------------------------------------------------- helpers
+    def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:
+        """The Gaussians that can appear in the frame (with a margin for the motion to come)."""
+        keep = frustum_mask(gaussians.means, gaussians.log_scales, self.intrinsics, w2c, self.renderer.near,
+                            margin=0.25)
+        return Gaussians(*(x[keep] for x in (gaussians.means, gaussians.colors, gaussians.rotations,
+                                              gaussians.logit_opacities, gaussians.log_scales)))
+
+    def observe(self, color: np.ndarray, depth: np.ndarray, intr: Intrinsics) -> Observation:
+        """The frame at `intr`, reduced to the configured pixel subset."""
+        tc = self.config
+        c, d = resize_to(color, intr, False), resize_to(depth, intr, True)
+        pixels = choose_pixels(tc.pixels, c, d, tc.pixel_tile, tc.pixels_per_tile, self.rng)
+        if pixels is not None:
+            c, d = c[pixels[:, 1], pixels[:, 0]], d[pixels[:, 1], pixels[:, 0]]
+        device, dtype = self.device, self.dtype
+        as_t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)  # noqa: E731
+        return Observation(intr, as_t(c), as_t(d), pixels)
+
+    # -------------------------------------------------------------- checkpoints
+    def state(self) -> str:
+        return json.dumps(self.rng.bit_generator.state)
+
+    def load_state(self, state: str) -> None:
+        self.rng.bit_generator.state = json.loads(state)

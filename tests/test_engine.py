@@ -17,7 +17,8 @@ from splat_core.keyframes import KeyframeStore, is_keyframe_time, overlap_scores
 from splat_core.mapping import View, frustum_mask, optimise_map, prune_mask
 from splat_core.render import render
 from splat_core.synthetic import SyntheticSource
-from splat_core.tracking import track
+from splat_core.render import Renderer
+from splat_core.tracking import Candidate, Observation, Tracker, candidate, polish
 
 
 def small_source(n=12, w=80, h=60, **kw):
@@ -76,13 +77,33 @@ def test_tracking_recovers_a_perturbed_pose():
     optimise_map(m, [view], f0.intrinsics, MappingConfig(), 150, 2.0, np.random.default_rng(0))
     truth = rel_w2c(src, 1)
     start = pose_matrix(np.eye(3), (0.01, -0.005, 0.008)) @ truth
-    out = track(m.tensors(detach=True), torch.as_tensor(f1.color), torch.as_tensor(f1.depth),
-                f1.intrinsics, start, TrackingConfig(iterations=60))
+    obs = Observation(f1.intrinsics, torch.as_tensor(f1.color), torch.as_tensor(f1.depth))
+    out = polish(Renderer(), m.tensors(detach=True), obs, start, TrackingConfig(iterations=60))
     centre = lambda w2c: invert_pose(w2c)[:3, 3]  # noqa: E731
     err0 = np.linalg.norm(centre(start) - centre(truth))
     err = np.linalg.norm(centre(out.w2c) - centre(truth))
     assert err < 0.008 and err < err0 / 2
     assert out.iterations == 60 and out.valid_pixels > 0
+
+
+@pytest.mark.parametrize("rule", ["random", "gradient"])
+def test_sparse_tracking_recovers_a_perturbed_pose_like_dense_tracking(rule):
+    # The previous test's setting, tracked on one pixel per 4 x 4 block through the sparse renderer.
+    src = small_source(n=2, w=160, h=120)
+    f0, f1 = src[0], src[1]
+    m = map_from_frame(f0)
+    view = View(torch.as_tensor(f0.color), torch.as_tensor(f0.depth), np.eye(4))
+    optimise_map(m, [view], f0.intrinsics, MappingConfig(), 150, 2.0, np.random.default_rng(0))
+    truth = rel_w2c(src, 1)
+    start = pose_matrix(np.eye(3), (0.01, -0.005, 0.008)) @ truth
+    centre = lambda w2c: invert_pose(w2c)[:3, 3]  # noqa: E731
+    errors = {}
+    for pixels in ("all", rule):
+        tracker = Tracker(TrackingConfig(iterations=60, pixels=pixels, pixel_tile=4), f1.intrinsics, Renderer())
+        out = tracker.track(m.tensors(detach=True), f1.color, f1.depth, start)
+        errors[pixels] = np.linalg.norm(centre(out.w2c) - centre(truth))
+        assert out.iterations == 60 and out.valid_pixels > 0
+    assert errors[rule] < 0.008 and errors[rule] < 1.5 * errors["all"] + 0.001, errors
 
 
 def test_tracking_keeps_the_best_pose_not_the_last():
@@ -91,8 +112,8 @@ def test_tracking_keeps_the_best_pose_not_the_last():
     m = map_from_frame(f0)
     # A huge learning rate makes later steps diverge; the best (initial, exact) pose must be kept.
     cfg = TrackingConfig(iterations=5, lr_rotation=0.5, lr_translation=0.5)
-    out = track(m.tensors(detach=True), torch.as_tensor(f0.color), torch.as_tensor(f0.depth),
-                f0.intrinsics, np.eye(4), cfg)
+    obs = Observation(f0.intrinsics, torch.as_tensor(f0.color), torch.as_tensor(f0.depth))
+    out = polish(Renderer(), m.tensors(detach=True), obs, np.eye(4), cfg)
     assert np.allclose(out.w2c, np.eye(4), atol=1e-6)
 
 
@@ -317,7 +338,7 @@ def test_direct_alignment_keeps_the_start_when_the_map_is_out_of_view():
 
 
 def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
-    import splat_core.slam as slam_module
+    import splat_core.tracking as tracking_module
     from splat_core.slam import SplaTAM
     src = small_source(n=2, w=80, h=60)
     cfg = load_config("cpu", overrides={"resolution": [80, 60], "tracking": {"iterations": 0},
@@ -326,37 +347,37 @@ def test_tracking_rejects_an_alignment_that_raises_the_loss(monkeypatch):
     slam.process(src[0])
     truth = rel_w2c(src, 1)
     wrong = pose_matrix(np.eye(3), (0.05, 0.0, 0.0)) @ truth
-    real_align = slam_module.align_to_map
+    real_align = tracking_module.align_to_map
 
     def align_returning(w2c):
         return lambda *a, **k: dataclasses.replace(real_align(*a, **k), w2c=w2c)
 
-    monkeypatch.setattr(slam_module, "align_to_map", align_returning(wrong))
-    w2c, _, _ = slam._track(src[1].color, src[1].depth, truth)
-    assert np.array_equal(w2c, truth)
-    monkeypatch.setattr(slam_module, "align_to_map", align_returning(truth))
-    w2c, _, _ = slam._track(src[1].color, src[1].depth, wrong)
-    assert np.array_equal(w2c, truth)
+    g = slam.map.tensors(detach=True)
+    monkeypatch.setattr(tracking_module, "align_to_map", align_returning(wrong))
+    out = slam.tracker.track(g, src[1].color, src[1].depth, truth)
+    assert np.array_equal(out.w2c, truth) and out.start == "prediction"
+    monkeypatch.setattr(tracking_module, "align_to_map", align_returning(truth))
+    out = slam.tracker.track(g, src[1].color, src[1].depth, wrong)
+    assert np.array_equal(out.w2c, truth) and out.start == "aligned"
 
 
-def test_tracking_starts_from_the_fallback_when_the_start_is_worse():
-    # The alignment check riding on Adam's first iteration (tracking.track's `fallback`).
-    from splat_core.tracking import evaluate_loss
+def test_tracking_starts_from_the_rival_when_the_start_is_worse():
+    # The acceptance check riding on Adam's first iteration (tracking.polish's `rival`).
     src = small_source(n=2, w=80, h=60)
     m = map_from_frame(src[0])
     f1, truth = src[1], rel_w2c(src, 1)
     wrong = pose_matrix(np.eye(3), (0.05, 0.0, 0.0)) @ truth
     cfg = TrackingConfig(iterations=1)
-    color, depth = torch.as_tensor(f1.color), torch.as_tensor(f1.depth)
-    g = m.tensors(detach=True)
-    at_truth = evaluate_loss(g, color, depth, f1.intrinsics, truth, cfg)
-    at_wrong = evaluate_loss(g, color, depth, f1.intrinsics, wrong, cfg)
-    # One iteration returns the pose it evaluated before stepping: the fallback when the start is worse...
-    out = track(g, color, depth, f1.intrinsics, wrong, cfg, fallback=(truth, *at_truth))
-    assert np.allclose(out.w2c, truth, atol=1e-6) and out.iterations == 1
+    obs = Observation(f1.intrinsics, torch.as_tensor(f1.color), torch.as_tensor(f1.depth))
+    g, renderer = m.tensors(detach=True), Renderer()
+    at_truth = candidate("prediction", truth, obs.render(renderer, g, truth), obs, cfg)
+    at_wrong = candidate("prediction", wrong, obs.render(renderer, g, wrong), obs, cfg)
+    # One iteration returns the pose it evaluated before stepping: the rival when the start is worse...
+    out = polish(renderer, g, obs, Candidate("aligned", wrong, np.nan, 0), cfg, rival=at_truth)
+    assert np.allclose(out.w2c, truth, atol=1e-6) and out.iterations == 1 and out.start == "prediction"
     # ... and the start when it is better.
-    out = track(g, color, depth, f1.intrinsics, truth, cfg, fallback=(wrong, *at_wrong))
-    assert np.allclose(out.w2c, truth, atol=1e-6)
+    out = polish(renderer, g, obs, Candidate("aligned", truth, np.nan, 0), cfg, rival=at_wrong)
+    assert np.allclose(out.w2c, truth, atol=1e-6) and out.start == "aligned"
 
 
 @pytest.mark.cuda

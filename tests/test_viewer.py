@@ -44,7 +44,7 @@ def test_worker_publishes_immutable_snapshots(tmp_path):
     assert snap.keyframes[1].thumbnail.dtype == np.uint8
     with pytest.raises(ValueError):
         snap.gaussians["means"][0, 0] = 1.0          # read-only copies
-    pipe.slam.map.params["means"].data[0, 0] = 123.0  # the worker's later edits never leak in
+    pipe.map.params["means"].data[0, 0] = 123.0  # the worker's later edits never leak in
     assert snap.gaussians["means"][0, 0] != 123.0
     assert pipe.finished and (tmp_path / "map.ply").is_file()
     assert len(read_ply(tmp_path / "map.ply")["means"]) == 100

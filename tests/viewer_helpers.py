@@ -1,18 +1,18 @@
-"""Helpers for the viewer tests: a small fake pipeline with the engine's API, and test maps."""
+"""Helpers for the viewer tests: a small fake run (pipeline.SlamRun, what the worker may use), and test maps."""
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from splat_core.camera import Intrinsics, invert_pose
+from splat_core.config import Config
 from splat_core.frame import Frame
 from splat_core.gaussians import GaussianMap
 from splat_core.keyframes import Keyframe
-from splat_core.slam import FrameResult
+from splat_core.slam import FrameResult, MapVersion
 
 INTR = Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)
 FRAME_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.3, 1.0), (0.1, 0.9, 0.2), (0.9, 0.9, 0.1), (0.8, 0.2, 0.9)]
@@ -27,15 +27,8 @@ def blob_map(n: int, frame_index: int = 0, color=(1.0, 0.1, 0.1), center=(0.0, 0
     return GaussianMap.from_points(pts, cols, np.full(n, radius), frame_index, opacity=opacity)
 
 
-@dataclass
-class FakeSlam:
-    intrinsics: Intrinsics
-    map: GaussianMap = field(default_factory=GaussianMap.empty)
-    keyframes: list = field(default_factory=list)
-
-
 class FakePipeline:
-    """The Pipeline API on a scripted scene: frame k adds `per_frame` Gaussians in colour k
+    """A SlamRun on a scripted scene: frame k adds `per_frame` Gaussians in colour k
     (a patch shifted right per frame), keyframe every `keyframe_every` frames, camera sliding +x."""
 
     def __init__(self, total: int = 6, per_frame: int = 300, keyframe_every: int = 2,
@@ -46,7 +39,11 @@ class FakePipeline:
         self.frame_seconds = frame_seconds
         self.out_dir = out_dir
         self.with_reference = with_reference
-        self.slam = FakeSlam(INTR)
+        self.config, self.intrinsics = Config(), INTR
+        self.map = GaussianMap.empty()
+        self.kf: list[Keyframe] = []
+        self.records: list[dict] = []
+        self.versions = 0
         self.w2cs: list[np.ndarray] = []
         self.finished = False
 
@@ -71,13 +68,23 @@ class FakePipeline:
         self.w2cs.append(w2c)
         new = blob_map(self.per_frame, k, FRAME_COLORS[k % len(FRAME_COLORS)],
                        center=(0.5 * k - 0.5, 0.0, 2.0), spread=0.2, seed=k)
-        self.slam.map.append(new)
+        self.map.append(new)
         frame = self.frame(k)
         is_kf = k % self.keyframe_every == 0
         if is_kf:
-            self.slam.keyframes.append(Keyframe(k, w2c, frame.color, frame.depth))
-        return FrameResult(k, k / 30.0, w2c, is_kf, len(self.slam.map), self.per_frame, 0,
+            self.kf.append(Keyframe(k, w2c, frame.color, frame.depth))
+        self.records.append(dict(index=k, wall_seconds=0.03))
+        return FrameResult(k, k / 30.0, w2c, is_kf, len(self.map), self.per_frame, 0,
                            0.01, 0.02, 0.5 / (k + 1), source_index=k, frame=frame)
+
+    def keyframes(self):
+        return list(self.kf)
+
+    def map_version(self):
+        self.versions += 1
+        g = self.map.tensors(detach=True)
+        return MapVersion(self.versions, len(self.w2cs) - 1, type(g)(*(x.clone() for x in (
+            g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales))), self.map.birth_frame.clone())
 
     def estimated_c2w(self):
         return [invert_pose(w) for w in self.w2cs]
@@ -100,7 +107,7 @@ class FakePipeline:
         if self.out_dir is not None:
             from splat_core.io.ply import write_ply
             from splat_core.io.trajectory import write_tum_trajectory
-            write_ply(self.out_dir / "map.ply", self.slam.map.to_numpy())
+            write_ply(self.out_dir / "map.ply", self.map.to_numpy())
             write_tum_trajectory(self.out_dir / "trajectory.txt", [k / 30.0 for k in range(len(self.w2cs))],
                                  self.estimated_c2w())
         return {"frames": len(self.w2cs)}

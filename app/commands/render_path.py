@@ -47,13 +47,13 @@ def main(args) -> int:
     import cv2
     import torch
 
-    from app.browse import read_map
+    from app.browse import near_plane_of, read_map
     from app.commands.export import map_path_of
     from app.images import colorize_depth, colorize_silhouette, to_uint8
     from splat_core.camera import invert_pose
     from splat_core.gaussians import Gaussians
     from splat_core.io.trajectory import read_tum_trajectory
-    from splat_core.render import render
+    from splat_core.render import Renderer
 
     run = Path(args.map)
     arrays = read_map(map_path_of(run))
@@ -70,9 +70,10 @@ def main(args) -> int:
     g = Gaussians(t(arrays["means"]), t(arrays["colors"]), t(arrays["rotations"]),
                   t(arrays["logit_opacities"]), t(arrays["log_scales"]))
     depth_max = args.depth_max
+    renderer = Renderer(near_plane_of(run), args.backend)
     for i, c2w in enumerate(c2ws):
         with torch.no_grad():
-            r = render(g, intr, t(invert_pose(c2w)), background=args.background, backend=args.backend)
+            r = renderer.render(g, intr, t(invert_pose(c2w)), background=args.background)
         if args.mode == "color":
             img = to_uint8(r.color.cpu().numpy())
         elif args.mode == "depth":

@@ -19,6 +19,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
     p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    p.add_argument("--engine", default="sequential", choices=["sequential", "live"],
+                   help="sequential: track, then map, frame by frame (deterministic; the default); live: "
+                   "tracking runs ahead while a mapper thread maps (faster, not bitwise reproducible)")
     p.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -42,9 +45,9 @@ def main(args) -> int:
     config = load_config(args.config or default_config_name(device))
     source = open_input(None if args.input == "synthetic" else args.input, format=args.format)
     pipe = Pipeline(source, config, out, device=args.device, max_frames=args.max_frames,
-                    stride=args.stride, resume=args.resume)
+                    stride=args.stride, resume=args.resume, engine=args.engine)
     if not args.quiet:
-        print(f"{source.describe()}\nconfig {config_summary(config)}; device {pipe.device}; "
+        print(f"{source.describe()}\nconfig {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
               f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}", file=sys.stderr)
         for note in pipe.notes:
             print(f"note: {note}", file=sys.stderr)

@@ -28,6 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
     p.add_argument("--open", default=None, metavar="RUN_DIR|MAP.ply",
                    help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
+    p.add_argument("--engine", default="live", choices=["live", "sequential"],
+                   help="live (default): tracking runs ahead while a mapper thread maps; sequential: "
+                   "track, then map, frame by frame")
     p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
 
 
@@ -94,10 +97,11 @@ def main(args) -> int:
         device = resolve_device(args.device)
         config = load_config(args.config or default_config_name(device))
         src = open_input(args.input, format=args.format)
-        pipe = Pipeline(src, config, out, device=args.device, max_frames=args.max_frames, stride=args.stride)
+        pipe = Pipeline(src, config, out, device=args.device, max_frames=args.max_frames, stride=args.stride,
+                        engine=args.engine)
         worker = SlamWorker(pipe, start_paused=args.paused)
         source, export_dir = worker, out
-        what = (f"{src.describe()}; config {config_summary(config)}; device {pipe.device}; "
+        what = (f"{src.describe()}; config {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
                 f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}"
                 + "".join(f"; note: {n}" for n in pipe.notes))
 

@@ -19,6 +19,7 @@ Backends: "cpu" (Numba tile rasterizer), "cuda" (gsplat), "reference" (dense tor
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -79,3 +80,46 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
         color, depth = image[..., :3], image[..., 3]
     color = color + (1.0 - alpha)[..., None] * bg
     return Render(color, depth, alpha)
+
+
+def render_pixels(gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=0.0, backend: str = "auto",
+                  near: float = 0.01, eps2d: float = 0.3) -> Render:
+    """`render` at chosen pixels only: pixels P x 2 integer (x, y) -> Render(color P x 3, depth P, alpha P).
+
+    The CPU backend composites just those pixels (`cpu_pixels.py`); gradients reach every
+    Gaussian parameter and the pose as with `render`. Other backends render the image and gather
+    (gsplat has no sparse-pixel entry point; its pose gradient is exact either way)."""
+    pixels = np.asarray(pixels, dtype=np.int64).reshape(-1, 2)
+    g = gaussians.tensors() if isinstance(gaussians, GaussianMap) else gaussians
+    dtype, device = g.means.dtype, g.means.device
+    which = resolve_backend(backend, device)
+    if which != "cpu" or len(g) == 0:
+        out = render(g, intrinsics, w2c, background=background, backend=which, near=near, eps2d=eps2d)
+        flat = torch.as_tensor(pixels[:, 1] * intrinsics.width + pixels[:, 0], device=device)
+        return Render(out.color.reshape(-1, 3)[flat], out.depth.reshape(-1)[flat], out.alpha.reshape(-1)[flat])
+    if not torch.is_tensor(w2c):
+        w2c = torch.as_tensor(np.asarray(w2c), dtype=dtype, device=device)
+    from .cpu_pixels import rasterize_cpu_pixels
+    p = project_gaussians(g, intrinsics, w2c, near=near, eps2d=eps2d)
+    features = torch.cat([g.colors, p.depths[:, None]], dim=1)
+    values, alpha = rasterize_cpu_pixels(p.means2d, p.conics, p.opacities, features, p.depths.detach(), p.radii,
+                                         intrinsics.width, intrinsics.height, pixels[:, 0], pixels[:, 1])
+    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(-1)
+    return Render(values[:, :3] + (1.0 - alpha)[:, None] * bg, values[:, 3], alpha)
+
+
+@dataclass(frozen=True)
+class Renderer:
+    """`render` and `render_pixels` with a run's near plane and backend bound once
+    (config.near_plane): the engine, the worker's live view, the viewer's novel views and
+    `splatam render` all draw the map through one of these."""
+
+    near: float = 0.01
+    backend: str = "auto"
+
+    def render(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0) -> Render:
+        return render(gaussians, intrinsics, w2c, background=background, backend=self.backend, near=self.near)
+
+    def pixels(self, gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=0.0) -> Render:
+        return render_pixels(gaussians, intrinsics, w2c, pixels, background=background, backend=self.backend,
+                             near=self.near)

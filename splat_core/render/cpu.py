@@ -75,7 +75,7 @@ last_stats: dict = {}   # what the most recent forward / backward measured (for 
 
 # ----------------------------------------------------------------------------- kernels
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, consts, params,
                        boxes, tile_counts):
     """Per depth-sorted live Gaussian: packed parameters, covered pixel box and tile count.
@@ -151,7 +151,7 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, c
         tile_counts[j] = (x1 // tile - x0 // tile + 1) * (y1 // tile - y0 // tile + 1)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
     """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
 
@@ -246,7 +246,7 @@ _B_T, _B_S, _B_GAT, _B_LAST, _B_GI = 0, 1, 5, 6, 7
 _B_N = 11
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
                     width, height, lanes, ntx, image, alpha_out, t_final, last, tile_last):
     """Front-to-back compositing of one 4-channel feature block, one tile per prange step.
@@ -366,7 +366,7 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
         tile_last[t] = tl
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, consts,
                      width, height, lanes, ntx, t_final, last, tile_last, grad_image, grad_alpha,
                      isect_grads):
@@ -514,7 +514,7 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
             kk -= one
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _reduce_grads(order, gauss_offsets, gauss_slots, isect_grads, zero, grad_means2d, grad_conics,
                   grad_opacities, grad_features):
     """Sum each Gaussian's intersection rows in a fixed order (deterministic, no atomics)."""

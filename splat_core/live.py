@@ -1,0 +1,142 @@
+"""The live engine: the caller's thread tracks every frame while a mapper thread maps.
+
+    engine = LiveEngine(slam, config.live)
+    result = engine.process(frame)      # tracks against the newest map version, hands the frame over
+    engine.drain()                      # wait until everything handed over is mapped (checkpoints, the end)
+    engine.close()
+
+The tracker (the thread that calls `process`: the pipeline's, the viewer's worker) tracks each frame
+against the newest `MapVersion` the mapper published and hands (frame, pose) to the mapper. The
+mapper takes everything handed over since its last step, and in one step:
+    densifies from each keyframe among them and from the newest frame (the others add little that
+    the newest does not: they sit between the two),
+    optimises the map over the newest frame's window (current + latest keyframe + overlapping
+    keyframes, SplaTAM's window), prunes, and keeps the keyframes,
+    publishes a new MapVersion (a copy: nothing renders a tensor the mapper is stepping).
+
+Hand-over policy (how far tracking may run ahead): frame 0 is mapped before frame 1 is tracked
+(there is nothing to track against before); after that the tracker waits while the newest
+published version is more than `live.max_lag` frames behind the frame it is about to track.
+So a fast tracker is never more than max_lag frames beyond the map, and on a machine where
+mapping is slower than tracking the mapper covers max_lag + 1 frames per step. Waiting is the
+only coupling: the tracker never blocks on the mapper's work otherwise, and the mapper never
+waits for the tracker.
+
+Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
+sequential engine (SplaTAM.process) is the deterministic reference.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+from .config import LiveConfig
+from .frame import Frame
+from .keyframes import is_keyframe_time
+from .slam import FrameResult, SplaTAM
+
+
+class LiveEngine:
+    def __init__(self, slam: SplaTAM, config: LiveConfig):
+        self.slam, self.config = slam, config
+        self._cond = threading.Condition()
+        self._pending: deque = deque()      # (t, frame, w2c) handed over, not yet mapped
+        self._handed = -1                   # newest frame index handed over
+        self._mapped = len(slam.w2cs) - 1   # newest frame index in a published version (resume: all)
+        self._closing = False
+        self.error: BaseException | None = None
+        self.mapper_steps = 0
+        self.mapper_seconds = 0.0
+        self.wait_seconds = 0.0
+        self.num_added = self.num_pruned = 0
+        if self._mapped >= 0:
+            slam.publish(self._mapped)
+        self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
+        self._thread.start()
+
+    # ------------------------------------------------------------------ the tracker's side
+    def process(self, frame: Frame, w2c_given=None) -> FrameResult:
+        t = len(self.slam.w2cs)
+        waited = self._wait_for_map(t)
+        start = time.perf_counter()
+        version = self.slam.latest_version()
+        gaussians = version.gaussians if version is not None else self.slam.map.tensors(detach=True)
+        t, w2c, tracked = self.slam.track(frame, gaussians, w2c_given)
+        tracking_seconds = time.perf_counter() - start
+        with self._cond:
+            self._pending.append((t, frame, w2c))
+            self._handed = t
+            self._cond.notify_all()
+        return FrameResult(
+            index=t, timestamp=frame.timestamp, w2c=w2c,
+            is_keyframe=is_keyframe_time(t, self.slam.total_frames, self.slam.config.keyframes.every),
+            num_gaussians=len(version) if version is not None else 0, num_added=0, num_pruned=0,
+            tracking_seconds=tracking_seconds, mapping_seconds=waited,
+            tracking_loss=tracked.loss if tracked else None,
+            tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index,
+            map_version=version.number if version is not None else 0)
+
+    def _wait_for_map(self, t: int) -> float:
+        """Block while the map is too far behind frame t (the policy above); returns seconds waited."""
+        start = time.perf_counter()
+        need = max(0, t - 1 - self.config.max_lag)
+        with self._cond:
+            while t > 0 and self._mapped < need and self.error is None:
+                self._cond.wait(0.5)
+            self._raise()
+        waited = time.perf_counter() - start
+        self.wait_seconds += waited
+        return waited
+
+    def drain(self) -> None:
+        """Wait until every frame handed over is mapped and published."""
+        with self._cond:
+            while self._mapped < self._handed and self.error is None:
+                self._cond.wait(0.5)
+            self._raise()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closing = True
+            self._cond.notify_all()
+        self._thread.join()
+        self._raise()
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            raise RuntimeError(f"the mapper thread failed: {type(self.error).__name__}: {self.error}") from self.error
+
+    # ------------------------------------------------------------------ the mapper thread
+    def _run_mapper(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not self._pending and not self._closing:
+                        self._cond.wait(0.5)
+                    if not self._pending:
+                        return
+                    batch = list(self._pending)
+                    self._pending.clear()
+                self._map(batch)
+        except BaseException as e:       # reported to the tracker at its next call
+            with self._cond:
+                self.error = e
+                self._cond.notify_all()
+
+    def _map(self, batch: list) -> None:
+        start = time.perf_counter()
+        slam, every = self.slam, self.slam.config.keyframes.every
+        newest = batch[-1][0]
+        for t, frame, w2c in batch:
+            if t == newest or is_keyframe_time(t, slam.total_frames, every):
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
+                self.num_added += stats.added
+                self.num_pruned += stats.pruned
+        slam.publish(newest)
+        self.mapper_steps += 1
+        self.mapper_seconds += time.perf_counter() - start
+        with self._cond:
+            self._mapped = newest
+            self._cond.notify_all()

@@ -1,0 +1,114 @@
+"""The live engine (live.py): tracking against published map versions while a mapper thread maps,
+with other threads rendering those versions at the same time; and sparse-pixel tracking."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+import torch
+
+from splat_core.config import load_config
+from splat_core.pipeline import Pipeline
+from splat_core.pixel_selection import choose_pixels
+from splat_core.render import render
+from splat_core.synthetic import SyntheticSource
+
+
+def _source(n=10):
+    return SyntheticSource(n_frames=n, width=160, height=120, seed=0)
+
+
+def _config(**tracking):
+    return load_config("cpu", overrides={"resolution": [160, 120], "checkpoint_every": 0,
+                                         "mapping": {"first_frame_iterations": 40},
+                                         "tracking": tracking})
+
+
+def _run(pipe: Pipeline) -> Pipeline:
+    while pipe.step() is not None:
+        pass
+    return pipe
+
+
+# ----------------------------------------------------------------------------- pixel rules
+
+@pytest.mark.parametrize("rule", ["random", "gradient", "depth_edges"])
+def test_pixel_rules_pick_valid_pixels_in_every_block(rule):
+    frame = _source(1)[0]
+    depth = frame.depth.copy()
+    depth[:20, :40] = 0                                   # blocks without depth get no pixel
+    pixels = choose_pixels(rule, frame.color, depth, 8, 2, np.random.default_rng(0))
+    x, y = pixels[:, 0], pixels[:, 1]
+    assert (depth[y, x] > 0).all()
+    blocks = (y // 8) * 20 + x // 8
+    counts = np.bincount(blocks, minlength=15 * 20)
+    has_depth = np.add.reduceat(np.add.reduceat((depth > 0).astype(int), np.arange(0, 120, 8), 0),
+                                np.arange(0, 160, 8), 1).ravel() > 0
+    assert (counts[has_depth] == np.minimum(2, 64)).all() and (counts[~has_depth] == 0).all()
+    assert len(np.unique(y * 160 + x)) == len(x)
+
+
+def test_gradient_rule_takes_the_strongest_edge_of_a_block():
+    color = np.zeros((16, 16, 3), np.float32)
+    color[:, 5:] = 1.0                                     # one vertical edge between x = 4 and 5
+    pixels = choose_pixels("gradient", color, np.ones((16, 16), np.float32), 16, 1, np.random.default_rng(0))
+    assert pixels.shape == (1, 2) and pixels[0, 0] in (4, 5) and 1 <= pixels[0, 1] <= 14
+
+
+# ----------------------------------------------------------------------------- live engine
+
+@pytest.mark.slow
+def test_live_engine_tracks_while_other_threads_render_its_map():
+    sequential = _run(Pipeline(_source(), _config(pixels="random", align_stride=2)))
+    live = Pipeline(_source(), _config(pixels="random", align_stride=2), engine="live")
+    seen, errors, stop = {}, [], threading.Event()
+    intr = live.intrinsics.scaled(80, 60)
+
+    def viewer():          # novel views of whatever version is newest, as the viewer thread does
+        try:
+            while not stop.is_set():
+                if live.live is None or live.slam.latest_version() is None:
+                    continue
+                version = live.map_version()
+                seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))
+                with torch.no_grad():
+                    out = render(version.gaussians, intr, np.eye(4), near=live.config.near_plane)
+                assert torch.isfinite(out.color).all()
+        except BaseException as e:   # noqa: BLE001 - reported below
+            errors.append(e)
+
+    thread = threading.Thread(target=viewer)
+    thread.start()
+    try:
+        _run(live)
+        metrics = live.finish()
+    finally:
+        stop.set()
+        thread.join()
+    assert not errors, errors
+    assert len(seen) >= 3, "the viewer saw the map grow version by version"
+    for number, (version, checksum) in seen.items():   # nothing changed a published version
+        assert version.gaussians.means.sum().item() == checksum, number
+    assert metrics["engine"] == "live" and metrics["live"]["mapper_steps"] >= 2
+    assert live.ate_cm() <= 1.5 * sequential.ate_cm() + 0.05, (live.ate_cm(), sequential.ate_cm())
+    assert len(live.slam.keyframes) == len(sequential.slam.keyframes)
+
+
+@pytest.mark.slow
+def test_live_run_resumes_from_its_checkpoint(tmp_path):
+    config = load_config("cpu", overrides={"resolution": [160, 120], "checkpoint_every": 4,
+                                           "mapping": {"first_frame_iterations": 40},
+                                           "tracking": {"pixels": "random"}})
+    first = Pipeline(_source(8), config, tmp_path, engine="live")
+    for _ in range(6):           # killed after frame 5: the checkpoint holds frames 0-3
+        first.step()
+    first.live.close()
+    resumed = _run(Pipeline(_source(8), config, tmp_path, engine="live", resume=True))
+    resumed.finish()
+    assert len(resumed.slam.w2cs) == 8 and resumed.ate_cm() < 1.0
+    assert (tmp_path / "map.ply").is_file()
+    from splat_core.errors import InputError
+    with pytest.raises(InputError, match="engine"):
+        Pipeline(_source(8), config, tmp_path, engine="sequential", resume=True)
