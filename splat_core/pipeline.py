@@ -133,9 +133,6 @@ class Pipeline:
     def keyframes(self) -> list[Keyframe]:
         return list(self.slam.keyframes)
 
-    def keyframes(self) -> list[Keyframe]:
-        return list(self.slam.keyframes)
-
     def map_version(self) -> MapVersion:
         """The newest map that may be read from any thread (live: the mapper's latest version;
         sequential: a copy of the map made now, by the stepping thread)."""
