@@ -1,148 +1,24 @@
-"""Tiny procedural RGB-D sequences written in every capture format's own conventions.
+"""Tiny synthetic captures written in each app's or toolkit's own layout.
 
-The scene: a camera moving (and turning) in front of a textured back wall, a floor, a side wall
-and a floating panel. Depth is analytic (ray/plane intersection at the pixel centres, camera.py's
-convention), colour a smooth function of the hit point, poses exact (c2w, OpenCV axes).
-Each writer stores the sequence as that format does: OpenGL poses, column-major K, portrait depth
-arrays, millimetre or 65535/10 depth, LZFSE, mp4, -inf poses, is_bad frames, 65535 = no reading.
-`Fixture.expected(i)` is what a reader must return for frame i at its default working resolution.
+Each writer follows what the real writer does, as read from its source and recorded in
+/work/shared/reference/capture_layouts.md (cited per writer: repository @ commit, path): file
+names, image sizes where the reader depends on them, units and rounding, pose and intrinsics
+conventions, invalid-depth markers. The scene, the expected frames and the tolerances live in
+fixture_scene.py; `Fixture.expected(i)` is what a reader must return for frame i.
 """
 
 from __future__ import annotations
 
 import json
 import zipfile
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from splat_core.camera import (Intrinsics, c2w_opengl_to_opencv, pose_matrix, rotmat_to_quat)
-
-# Regions of every depth map (rows, cols) used to plant invalid values.
-HOLE = (slice(0, 4), slice(0, 6))  # depth 0 in every format
-MARK = (slice(4, 8), slice(0, 6))  # the format's own "invalid" marker (65535, NaN, low confidence)
-MEDIUM = (slice(8, 12), slice(0, 6))  # confidence 1 (kept by the default min_confidence=1)
-
-PLANES = [  # (normal n, offset c): points x with n.x = c; optional bounds on the hit point
-    (np.array([0.0, 0.0, 1.0]), 4.0, None),  # back wall z = 4
-    (np.array([0.0, 1.0, 0.0]), 1.2, None),  # floor y = 1.2 (OpenCV: y down)
-    (np.array([1.0, 0.0, 0.0]), -2.0, None),  # left wall x = -2
-    (np.array([0.0, 0.0, 1.0]), 2.5, ((0.1, 1.0), (-0.8, 0.3))),  # panel z = 2.5, x and y bounds
-]
-
-
-def _rot(yaw, pitch, roll):
-    cy, sy, cp, sp, cr, sr = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch), np.cos(roll), np.sin(roll)
-    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
-    Rx = np.array([[1, 0, 0], [0, cp, -sp], [0, sp, cp]])
-    Rz = np.array([[cr, -sr, 0], [sr, cr, 0], [0, 0, 1]])
-    return Ry @ Rx @ Rz
-
-
-def camera_path(n: int) -> list[np.ndarray]:
-    out = []
-    for i in range(n):
-        s = i / max(n - 1, 1)
-        t = [0.35 * np.sin(2.0 * s), -0.15 + 0.1 * np.cos(3.0 * s), 0.4 * s]
-        R = _rot(np.radians(-8 + 16 * s), np.radians(4 * np.sin(3 * s)), np.radians(3 * s))
-        out.append(pose_matrix(R, t))
-    return out
-
-
-def render(c2w: np.ndarray, intr: Intrinsics) -> tuple[np.ndarray, np.ndarray]:
-    """(colour HxWx3 float32 in [0,1], depth HxW float32 metres) seen by camera c2w."""
-    u, v = np.meshgrid(np.arange(intr.width, dtype=np.float64), np.arange(intr.height, dtype=np.float64))
-    d_cam = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(u)], -1)
-    d = d_cam @ c2w[:3, :3].T
-    o = c2w[:3, 3]
-    best = np.full(u.shape, np.inf)
-    hit = np.zeros(u.shape + (3,))
-    plane_id = np.zeros(u.shape, dtype=int)
-    for k, (n, c, bounds) in enumerate(PLANES):
-        nd = d @ n
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = (c - o @ n) / nd
-        p = o + s[..., None] * d
-        ok = (s > 1e-6) & np.isfinite(s)
-        if bounds is not None:
-            ok &= (p[..., 0] > bounds[0][0]) & (p[..., 0] < bounds[0][1])
-            ok &= (p[..., 1] > bounds[1][0]) & (p[..., 1] < bounds[1][1])
-        closer = ok & (s < best)
-        best[closer] = s[closer]
-        hit[closer] = p[closer]
-        plane_id[closer] = k
-    x, y, z = hit[..., 0], hit[..., 1], hit[..., 2]
-    color = np.stack([
-        0.5 + 0.35 * np.sin(2.2 * x + 1.3 * y + 0.7 * plane_id),
-        0.5 + 0.35 * np.sin(1.7 * y - 1.1 * z + 1.9 * plane_id),
-        0.5 + 0.35 * np.cos(1.5 * x + 1.2 * z - 0.5 * plane_id),
-    ], -1)
-    depth = np.where(np.isfinite(best), best, 0.0)  # d_cam has z = 1, so s is the camera z
-    return color.astype(np.float32), depth.astype(np.float32)
-
-
-def make_intrinsics(width: int, height: int) -> Intrinsics:
-    f = 0.85 * max(width, height)
-    return Intrinsics(f, f * 1.01, (width - 1) / 2 + 0.7, (height - 1) / 2 - 0.4, width, height)
-
-
-@dataclass
-class Sequence:
-    color_intr: Intrinsics
-    depth_size: tuple[int, int]
-    timestamps: np.ndarray
-    c2w: list[np.ndarray]
-    colors: list[np.ndarray]  # at the colour resolution
-    depths: list[np.ndarray]  # at the depth resolution, 0 in HOLE
-
-    @property
-    def depth_intr(self) -> Intrinsics:
-        w, h = self.depth_size
-        return self.color_intr if (w, h) == (self.color_intr.width, self.color_intr.height) else \
-            self.color_intr.scaled(w, h)
-
-    def __len__(self):
-        return len(self.c2w)
-
-
-def make_sequence(n: int = 8, color_size=(64, 48), depth_size=None, t0: float = 0.0) -> Sequence:
-    depth_size = tuple(depth_size or color_size)
-    cintr = make_intrinsics(*color_size)
-    dintr = cintr if depth_size == tuple(color_size) else cintr.scaled(*depth_size)
-    poses = camera_path(n)
-    colors, depths = [], []
-    for T in poses:
-        colors.append(render(T, cintr)[0])
-        d = render(T, dintr)[1]
-        d[HOLE] = 0.0
-        depths.append(d)
-    return Sequence(cintr, depth_size, t0 + np.arange(n) / 30.0, poses, colors, depths)
-
-
-@dataclass
-class Fixture:
-    name: str
-    path: Path
-    seq: Sequence
-    frames: list[int]  # sequence frames the reader should return, in order
-    depth_tol: float  # quantisation of the format's depth
-    color_tol: float  # mean |error| allowed for lossy colour
-    marked: bool = True  # MARK region must read back as invalid
-    poses: dict = field(default_factory=dict)  # sequence index -> expected c2w or None (default: seq.c2w)
-
-    def expected(self, k: int):
-        """(colour, depth, intrinsics, c2w) the reader must return for its k-th frame."""
-        i = self.frames[k]
-        intr = self.seq.depth_intr
-        color = self.seq.colors[i]
-        if (color.shape[1], color.shape[0]) != (intr.width, intr.height):
-            color = cv2.resize(color, (intr.width, intr.height), interpolation=cv2.INTER_AREA)
-        depth = self.seq.depths[i].copy()
-        if self.marked:
-            depth[MARK] = 0.0
-        return color, depth, intr, self.poses.get(i, self.seq.c2w[i])
+from splat_core.camera import Intrinsics, c2w_opengl_to_opencv, rotmat_to_quat
+from fixture_scene import (HOLE, MARK, MEDIUM, Fixture, Sequence, _rot, camera_path, make_intrinsics,  # noqa: F401
+                           make_sequence, render_rays)
 
 
 # ----------------------------------------------------------------------------- encoders
@@ -159,9 +35,10 @@ def _png(color) -> bytes:
     return cv2.imencode(".png", _bgr8(color))[1].tobytes()
 
 
-def _depth_png(depth, units_per_metre, marker=None) -> bytes:
-    raw = np.round(depth.astype(np.float64) * units_per_metre)
-    raw = np.clip(raw, 0, 65535).astype(np.uint16)
+def _depth_png(depth, units_per_metre, marker=None, truncate=False) -> bytes:
+    """uint16 PNG; `truncate` converts like numpy's astype (the capture scripts), else rounds."""
+    raw = depth.astype(np.float64) * units_per_metre
+    raw = np.clip(np.floor(raw) if truncate else np.round(raw), 0, 65535).astype(np.uint16)
     if marker is not None:
         raw[MARK] = marker
     return cv2.imencode(".png", raw)[1].tobytes()
@@ -175,6 +52,17 @@ def _write(path: Path, data: bytes | str):
         path.write_bytes(data)
 
 
+def _write_all(path: Path, files: dict, as_zip: bool, top: str = ""):
+    if as_zip:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+            for name, data in files.items():
+                z.writestr(top + name, data)
+    else:
+        for name, data in files.items():
+            _write(path / name, data)
+
+
 def _tum_line(t, T):
     q = rotmat_to_quat(T[:3, :3])
     return f"{t:.6f} {T[0, 3]:.10f} {T[1, 3]:.10f} {T[2, 3]:.10f} {q[1]:.10f} {q[2]:.10f} {q[3]:.10f} {q[0]:.10f}"
@@ -184,7 +72,16 @@ def _gl(T):
     return c2w_opengl_to_opencv(T)  # the flip is its own inverse
 
 
-# ----------------------------------------------------------------------------- writers
+def _f32(x) -> float:
+    return float(np.float32(x))
+
+
+def _savetxt(M) -> str:
+    """numpy.savetxt(fmt='%f') row by row, as ScanNet's SensorData.save_mat_to_file."""
+    return "".join(" ".join(f"{v:f}" for v in row) + "\n" for row in np.asarray(M, dtype=np.float32))
+
+
+# ----------------------------------------------------------------------------- benchmarks
 
 def write_tum(root: Path, n=8, camera_file=True, associations=False, shuffled=False) -> Fixture:
     """TUM layout: depth stamps 10 ms after colour, 65535 = no reading (7-Scenes), camera.yaml."""
@@ -225,54 +122,158 @@ def write_replica(root: Path, n=8) -> Fixture:
     return Fixture("replica", root, seq, list(range(n)), 1 / 6553.5, 0.03, marked=False)
 
 
-def write_scannet(root: Path, n=8) -> Fixture:
-    """Colour 128x96 over depth 64x48; frame 3 has a -inf pose; frame 5 lacks its depth image."""
-    seq = make_sequence(n, color_size=(128, 96), depth_size=(64, 48))
+# ScanNet's colour camera as intrinsic_color.txt prints it (float32 values, '%f')
+SCANNET_COLOR_K = Intrinsics(1169.621094, 1167.105103, 646.295044, 489.927032, 1296, 968)
+
+
+def write_scannet(root: Path, n=6, color_size=(1296, 968)) -> Fixture:
+    """ScanNet/ScanNet SensReader/python/SensorData.py (capture_layouts.md section 4): color/<f>.jpg,
+    depth/<f>.png (uint16 mm, 640x480), pose/<f>.txt and intrinsic/{intrinsic,extrinsic}_{color,depth}.txt
+    as savetxt('%f') rows; intrinsic_color is the sensor's 1296x968 camera even when
+    `export_color_images(image_size=...)` resized the colour (nearest), e.g. color_size=(640, 480).
+    Frame 3 has a -inf pose (as ScanNet marks lost tracking); frame 5's depth image is missing."""
+    depth_intr = SCANNET_COLOR_K.scaled(640, 480)
+    seq = make_sequence(n, depth_size=(640, 480), color_intr=SCANNET_COLOR_K)
+    if tuple(color_size) != (1296, 968):  # SensorData: cv2.resize(color, image_size, INTER_NEAREST)
+        seq.colors = [cv2.resize(c, tuple(color_size), interpolation=cv2.INTER_NEAREST) for c in seq.colors]
+        seq.color_intr = SCANNET_COLOR_K.scaled(*color_size)
     for i in range(n):
         _write(root / f"color/{i}.jpg", _jpg(seq.colors[i]))
         if i != 5:
             _write(root / f"depth/{i}.png", _depth_png(seq.depths[i], 1000.0, marker=0))
-        T = np.full((4, 4), -np.inf) if i == 3 else seq.c2w[i]
-        _write(root / f"pose/{i}.txt", "\n".join(" ".join(f"{v:.12g}" for v in row) for row in T) + "\n")
+        _write(root / f"pose/{i}.txt", _savetxt(np.full((4, 4), -np.inf) if i == 3 else seq.c2w[i]))
     Kc, Kd = np.eye(4), np.eye(4)
-    Kc[:3, :3] = seq.color_intr.K
-    Kd[:3, :3] = seq.depth_intr.K
-    _write(root / "intrinsic/intrinsic_color.txt", "\n".join(" ".join(f"{v:.12g}" for v in r) for r in Kc))
-    _write(root / "intrinsic/intrinsic_depth.txt", "\n".join(" ".join(f"{v:.12g}" for v in r) for r in Kd))
+    Kc[:3, :3], Kd[:3, :3] = SCANNET_COLOR_K.K, depth_intr.K
+    _write(root / "intrinsic/intrinsic_color.txt", _savetxt(Kc))
+    _write(root / "intrinsic/intrinsic_depth.txt", _savetxt(Kd))
+    _write(root / "intrinsic/extrinsic_color.txt", _savetxt(np.eye(4)))
+    _write(root / "intrinsic/extrinsic_depth.txt", _savetxt(np.eye(4)))
     return Fixture("scannet", root, seq, [i for i in range(n) if i != 5], 1e-3, 0.03, poses={3: None})
 
 
-def write_scannetpp(root: Path, n=8) -> Fixture:
-    """Every third frame in test_frames; frame 2 is_bad; OpenGL poses."""
-    seq = make_sequence(n)
-    k = seq.color_intr
+# ScanNet++ DSLR fisheye camera of the resized images, shrunk 8x from 1752x1168 (sizes do not
+# matter to the reader; distortion coefficients are per radian and kept at a realistic size).
+SCANNETPP_FISHEYE = dict(fl_x=100.6, fl_y=100.4, cx=109.2, cy=73.4, w=219, h=146,
+                         k1=-0.031, k2=-0.0042, k3=0.0011, k4=-0.0002)
+
+
+def _scannetpp_cameras():
+    """(fisheye K, D, size, pinhole Intrinsics) as scannetpp @f3b4712 dslr/undistort.py derives the
+    undistorted camera: estimateNewCameraMatrixForUndistortRectify(balance=0), centre forced to w/2, h/2."""
+    c = SCANNETPP_FISHEYE
+    K = np.array([[c["fl_x"], 0, c["cx"]], [0, c["fl_y"], c["cy"]], [0, 0, 1]])
+    D = np.array([c["k1"], c["k2"], c["k3"], c["k4"]])
+    K_new = cv2.fisheye.estimateNewCameraMatrixForUndistortRectify(K, D, (c["w"], c["h"]), np.eye(3), balance=0.0)
+    return K, D, (c["w"], c["h"]), Intrinsics(K_new[0, 0], K_new[1, 1], c["w"] / 2.0, c["h"] / 2.0, c["w"], c["h"])
+
+
+def _fisheye_depth(c2w, K, D, size) -> np.ndarray:
+    """Camera z seen through the fisheye lens, as the mesh renderer of common/render.py gives it."""
+    w, h = size
+    u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    pts = np.stack([u.ravel(), v.ravel()], -1).reshape(-1, 1, 2)
+    xy = cv2.fisheye.undistortPoints(pts, K, D).reshape(h, w, 2)
+    return render_rays(c2w, np.concatenate([xy, np.ones((h, w, 1))], -1))[1]
+
+
+def write_scannetpp(root: Path, n=8, route="fork") -> Fixture:
+    """ScanNet++ DSLR scene (capture_layouts.md section 5). Both routes: the download's
+    dslr/nerfstudio/transforms.json (scannetpp @f3b4712 common/utils/nerfstudio.py: OPENCV_FISHEYE
+    fl_x fl_y cx cy k1-k4 w h, frames/test_frames with file_path, transform_matrix in OpenGL camera
+    axes, mask_path; is_bad) and dslr/undistort.py's undistorted_images/ + transforms_undistorted.json
+    (PINHOLE, k1-k4 zeroed). route="fork": Nik-V9/scannetpp @0b4489c undistort.py's
+    undistorted_depths/<stem>.png (uint16 mm); route="official": common/render.py's fisheye
+    render_depth/<stem>.png, `(depth * 1000).clip(0, 65535).astype(uint16)`.
+    Every third frame is a test frame; frame 2 is_bad."""
+    K, D, size, pinhole = _scannetpp_cameras()
+    official = route == "official"
+    seq = make_sequence(n, color_intr=pinhole, hole=not official)
     frames, test = [], []
     for i in range(n):
         name = f"DSC{i + 1:05d}.JPG"
         _write(root / f"dslr/undistorted_images/{name}", _jpg(seq.colors[i]))
-        _write(root / f"dslr/undistorted_depths/DSC{i + 1:05d}.png", _depth_png(seq.depths[i], 1000.0, marker=0))
-        entry = dict(file_path=name, transform_matrix=_gl(seq.c2w[i]).tolist(), is_bad=(i == 2))
+        if official:
+            depth = _fisheye_depth(seq.c2w[i], K, D, size)
+            _write(root / f"dslr/render_depth/DSC{i + 1:05d}.png", _depth_png(depth, 1000.0, truncate=True))
+        else:
+            _write(root / f"dslr/undistorted_depths/DSC{i + 1:05d}.png",
+                   _depth_png(seq.depths[i], 1000.0, marker=0, truncate=True))
+        entry = dict(file_path=name, transform_matrix=_gl(seq.c2w[i]).tolist(), mask_path=name.replace(".JPG", ".png"),
+                     is_bad=(i == 2))
         (test if i % 3 == 1 else frames).append(entry)
-    meta = dict(fl_x=k.fx, fl_y=k.fy, cx=k.cx, cy=k.cy, w=k.width, h=k.height, camera_model="PINHOLE",
-                frames=frames[::-1], test_frames=test)
-    _write(root / "dslr/nerfstudio/transforms_undistorted.json", json.dumps(meta))
-    return Fixture("scannetpp", root, seq, [i for i in range(n) if i != 2], 1e-3, 0.03)
+    fisheye = dict(SCANNETPP_FISHEYE, camera_model="OPENCV_FISHEYE", frames=frames[::-1], test_frames=test)
+    _write(root / "dslr/nerfstudio/transforms.json", json.dumps(fisheye, indent=4))
+    undistorted = dict(fisheye, fl_x=pinhole.fx, fl_y=pinhole.fy, cx=pinhole.cx, cy=pinhole.cy, camera_model="PINHOLE",
+                       k1=0.0, k2=0.0, k3=0.0, k4=0.0)
+    _write(root / "dslr/nerfstudio/transforms_undistorted.json", json.dumps(undistorted, indent=4))
+    return Fixture("scannetpp", root, seq, [i for i in range(n) if i != 2], 2e-3, 0.03, marked=not official,
+                   depth_exact=not official)
 
 
-def write_nerfcapture(root: Path, n=8) -> Fixture:
-    seq = make_sequence(n)
-    k = seq.color_intr
+# ----------------------------------------------------------------------------- phone apps
+
+def _float32_intrinsics(intr: Intrinsics) -> Intrinsics:
+    """What survives the DDS message's float32 fields."""
+    return Intrinsics(_f32(intr.fx), _f32(intr.fy), _f32(intr.cx), _f32(intr.cy), intr.width, intr.height)
+
+
+def write_nerfcapture(root: Path, n=8, layout="splatam") -> Fixture:
+    """The app streaming over DDS, saved by a capture script (capture_layouts.md section 3):
+    layout="splatam": spla-tam/SplaTAM @da6bbcd scripts/nerfcapture2dataset.py (rgb/<i>.png,
+    depth/<i>.png, file_path "rgb/<i>.png"); layout="instant-ngp": NVlabs/instant-ngp
+    scripts/nerfcapture2nerf.py (images/<i>.png, images/<i>.depth.png, file_path "images/<i>").
+    Both: top-level fl_x fl_y cx cy w h of the first frame + integer_depth_scale = 10/65535; per frame
+    the float32 fl_x fl_y cx cy w h and transform_matrix (DDS column-major reshaped and transposed:
+    row-major c2w, ARKit camera axes), no timestamp; depth `(depth * 65535 / 10).astype(uint16)`
+    from the 256x192 LiDAR map, then cv2.resize to the RGB size with INTER_NEAREST."""
+    seq = make_sequence(n, color_size=(640, 480), depth_size=(256, 192), focal_jitter=0.004)
+    seq.frame_intr = [_float32_intrinsics(k) for k in seq.frame_intr]  # sub-1e-4 px change: not re-rendered
+    seq.color_intr = seq.frame_intr[0]
+    seq.depths = [cv2.resize(d, (640, 480), interpolation=cv2.INTER_NEAREST) for d in seq.depths]
+    seq.depth_size = (640, 480)
+    ngp = layout == "instant-ngp"
     frames = []
     for i in range(n):
-        _write(root / f"rgb/{i}.png", _png(seq.colors[i]))
-        _write(root / f"depth/{i}.png", _depth_png(seq.depths[i], 65535 / 10.0, marker=0))
-        frames.append(dict(file_path=f"rgb/{i}.png", depth_path=f"depth/{i}.png",
-                           transform_matrix=_gl(seq.c2w[i]).tolist(), timestamp=seq.timestamps[i],
+        rgb, dep = (f"images/{i}.png", f"images/{i}.depth.png") if ngp else (f"rgb/{i}.png", f"depth/{i}.png")
+        _write(root / rgb, _png(seq.colors[i]))
+        _write(root / dep, _depth_png(seq.depths[i], 65535 / 10.0, truncate=True))
+        k = seq.frame_intr[i]
+        frames.append(dict(transform_matrix=_gl(seq.c2w[i]).astype(np.float32).tolist(),
+                           file_path=f"images/{i}" if ngp else rgb, fl_x=k.fx, fl_y=k.fy, cx=k.cx, cy=k.cy,
+                           w=k.width, h=k.height, depth_path=dep))
+    k0 = seq.frame_intr[0]
+    meta = dict(fl_x=k0.fx, fl_y=k0.fy, cx=k0.cx, cy=k0.cy, w=k0.width, h=k0.height,
+                frames=frames, integer_depth_scale=10.0 / 65535.0)
+    _write(root / "transforms.json", json.dumps(meta, indent=4))
+    return Fixture("nerfcapture", root, seq, list(range(n)), 2 * 10.0 / 65535, 0.003, marked=False)
+
+
+def write_nerfcapture_offline(path: Path, n=3, depth="rgba", as_zip=True) -> Path:
+    """The app's own offline export (jc211/NeRFCapture @312cb01 NeRFCapture/DatasetWriter.swift,
+    Models/Manifest.swift; capture_layouts.md section 3): Zip.quickZipFiles of a <YYMMddHHmmss>/
+    folder with images/<i>.png, images/<i>.depth.png and transforms.json in Manifest's field order,
+    snake-cased keys (w h fl_x fl_y cx cy depth_integer_scale=1.0 frames; frames: file_path
+    "images/<i>", depth_path, transform_matrix, timestamp, fl_x fl_y cx cy w h). depth="rgba": the
+    depth map drawn as an 8-bit RGBA picture at 3x the RGB size (UIGraphicsBeginImageContext at
+    screen scale; NeRFCapture #10, #17); depth="none": listed but not written (the write is
+    commented out at 32cf915). Not readable by design: returns the path."""
+    seq = make_sequence(n)
+    k, top = seq.color_intr, "240223175130/"
+    files, frames = {}, []
+    for i in range(n):
+        files[f"images/{i}.png"] = _png(seq.colors[i])
+        if depth == "rgba":
+            grey = np.clip(seq.depths[i], 0, 1) * 255
+            big = cv2.resize(grey, (3 * k.width, 3 * k.height), interpolation=cv2.INTER_LINEAR)
+            files[f"images/{i}.depth.png"] = cv2.imencode(".png", np.dstack([big] * 3 + [np.full_like(big, 255)])
+                                                          .astype(np.uint8))[1].tobytes()
+        frames.append(dict(file_path=f"images/{i}", depth_path=f"images/{i}.depth.png",
+                           transform_matrix=_gl(seq.c2w[i]).tolist(), timestamp=1000.0 + seq.timestamps[i],
                            fl_x=k.fx, fl_y=k.fy, cx=k.cx, cy=k.cy, w=k.width, h=k.height))
-    meta = dict(fl_x=k.fx, fl_y=k.fy, cx=k.cx, cy=k.cy, w=k.width, h=k.height,
-                integer_depth_scale=10.0 / 65535, frames=frames)
-    _write(root / "transforms.json", json.dumps(meta, indent=1))
-    return Fixture("nerfcapture", root, seq, list(range(n)), 10.0 / 65535, 0.003)
+    meta = dict(w=k.width, h=k.height, fl_x=k.fx, fl_y=k.fy, cx=k.cx, cy=k.cy, depth_integer_scale=1.0, frames=frames)
+    files["transforms.json"] = json.dumps(meta)
+    _write_all(path, files, as_zip, top)
+    return path
 
 
 def _lzfse(arr: np.ndarray) -> bytes:
@@ -288,15 +289,21 @@ def _confidence(shape) -> np.ndarray:
     return conf
 
 
-def write_record3d(path: Path, n=8, portrait=False, as_zip=False) -> Fixture:
-    """Colour twice the depth size; NaN depth in MARK plus confidence 0 there; K column-major;
-    poses [qx qy qz qw tx ty tz] OpenGL. Portrait: colour 96x128, metadata dw/dh in the sensor's
-    landscape order (64, 48), depth arrays stored 64 rows x 48 columns like the colour image."""
-    cs, ds = ((96, 128), (48, 64)) if portrait else ((128, 96), (64, 48))
-    seq = make_sequence(n, color_size=cs, depth_size=ds)
+def write_record3d(path: Path, n=8, as_zip=False, dw_dh=True, per_frame_intrinsics=True) -> Fixture:
+    """A portrait LiDAR .r3d (capture_layouts.md section 1, from the app author's reader
+    marek-simonik/record3d_offline_unity_demo @ad5eade Assets/Scripts/Record3D/Playback/Record3DVideo.cs,
+    nerfstudio-project/viser @6bd9d22 src/viser/extras/_record3d.py and codekansas/usa
+    usa/tasks/datasets/r3d.py): a zip (or its unzipped folder) with `metadata` JSON (K column-major
+    for the 720x960 RGB image, w=720, h=960, dw=192, dh=256 in the same orientation, fps,
+    frameTimestamps, poses [qx qy qz qw tx ty tz] c2w in OpenGL camera axes, initPose,
+    perFrameIntrinsicCoeffs [fx fy cx cy] per frame at the RGB size), rgbd/<i>.jpg,
+    rgbd/<i>.depth (LZFSE float32 metres, 256 rows x 192 columns, NaN where invalid),
+    rgbd/<i>.conf (LZFSE uint8 0/1/2), icon, sound.m4a. dw_dh=False, per_frame_intrinsics=False:
+    an older file without those keys nor frameTimestamps (usa falls back to 256x192, n / fps)."""
+    seq = make_sequence(n, color_size=(720, 960), depth_size=(192, 256),
+                        focal_jitter=0.004 if per_frame_intrinsics else 0.0)
     k = seq.color_intr
-    files = {}
-    poses = []
+    files, poses = {}, []
     for i in range(n):
         files[f"rgbd/{i}.jpg"] = _jpg(seq.colors[i])
         d = seq.depths[i].copy()
@@ -306,29 +313,33 @@ def write_record3d(path: Path, n=8, portrait=False, as_zip=False) -> Fixture:
         T = _gl(seq.c2w[i])
         q = rotmat_to_quat(T[:3, :3])
         poses.append([q[1], q[2], q[3], q[0], *T[:3, 3]])
-    meta = dict(K=k.K.T.reshape(-1).tolist(), w=k.width, h=k.height, dw=max(ds), dh=min(ds), fps=30,
-                poses=poses, initPose=poses[0], cameraType=0)
+    meta = dict(K=k.K.T.reshape(-1).tolist(), w=k.width, h=k.height, fps=30, poses=poses, initPose=poses[0])
+    if dw_dh:
+        meta.update(dw=192, dh=256, frameTimestamps=seq.timestamps.tolist())
+    if per_frame_intrinsics:
+        meta["perFrameIntrinsicCoeffs"] = [[f.fx, f.fy, f.cx, f.cy] for f in seq.frame_intr]
     files["metadata"] = json.dumps(meta).encode()
+    files["icon"] = _jpg(seq.colors[0])
     files["sound.m4a"] = b""
-    if as_zip:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
-            for name, data in files.items():
-                z.writestr(name, data)
-    else:
-        for name, data in files.items():
-            _write(path / name, data)
-    return Fixture("record3d", path, seq, list(range(n)), 1e-6, 0.03)
+    _write_all(path, files, as_zip)
+    return Fixture("record3d", path, seq, list(range(n)), 1e-6, 0.03, medium_dropped=True)
 
 
-def write_strayscanner(root: Path, n=8, old=False) -> Fixture:
-    """rgb.mp4 (mp4v) at 128x96 over 64x48 depth; new layout: odometry with timestamp/frame columns,
-    depth png (mm); old layout: odometry without them, depth .npy."""
-    seq = make_sequence(n, color_size=(128, 96), depth_size=(64, 48))
+def write_strayscanner(root: Path, n=8, old=False, video_frames=None) -> Fixture:
+    """A Stray Scanner scan folder (strayrobots/scanner @e0e2522 docs/format.md and
+    StrayScanner/Helpers/{DatasetEncoder,OdometryEncoder,DepthEncoder,ConfidenceEncoder,VideoEncoder}.swift,
+    CCode/PngEncoder.mm; capture_layouts.md section 2): rgb.mp4 at the 1920x1440 capture size (HEVC
+    in the app; mp4v here, OpenCV cannot write HEVC), depth/<f:06>.png uint16 round(mm) 256 wide x
+    192 high, confidence/<f:06>.png L8 0/1/2, odometry.csv `timestamp, frame, x, y, z, qx, qy, qz, qw`
+    with ARFrame timestamps and frame as %06d, poses c2w already in OpenCV camera axes,
+    camera_matrix.csv the row-major K for 1920x1440, imu.csv. old=True: the 2021 layout (@1ccec0d:
+    depth/<f:06>.npy uint16 mm, odometry x y z qx qy qz qw without header). video_frames: how many
+    frames rgb.mp4 holds (n - 1: one short of odometry.csv)."""
+    seq = make_sequence(n, color_size=(1920, 1440), depth_size=(256, 192), t0=48213.25)
     root.mkdir(parents=True, exist_ok=True)
-    writer = cv2.VideoWriter(str(root / "rgb.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30.0, (128, 96))
+    writer = cv2.VideoWriter(str(root / "rgb.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 60.0, (1920, 1440))
     assert writer.isOpened(), "OpenCV cannot write mp4v video"
-    for c in seq.colors:
+    for c in seq.colors[:n if video_frames is None else video_frames]:
         writer.write(_bgr8(c))
     writer.release()
     rows = []
@@ -343,12 +354,13 @@ def write_strayscanner(root: Path, n=8, old=False) -> Fixture:
         T = seq.c2w[i]
         q = rotmat_to_quat(T[:3, :3])  # (w, x, y, z)
         vals = ", ".join(f"{v:.10f}" for v in [*T[:3, 3], q[1], q[2], q[3], q[0]])
-        rows.append(vals if old else f"{seq.timestamps[i]:.6f}, {i}, {vals}")
-    header = "x, y, z, qx, qy, qz, qw" if old else "timestamp, frame, x, y, z, qx, qy, qz, qw"
-    _write(root / "odometry.csv", header + "\n" + "\n".join(rows) + "\n")
+        rows.append(vals if old else f"{seq.timestamps[i]:.6f}, {i:06d}, {vals}")
+    header = "" if old else "timestamp, frame, x, y, z, qx, qy, qz, qw\n"
+    _write(root / "odometry.csv", header + "\n".join(rows) + "\n")
     _write(root / "camera_matrix.csv", "\n".join(", ".join(f"{v:.10f}" for v in r) for r in seq.color_intr.K) + "\n")
     _write(root / "imu.csv", "timestamp, a_x, a_y, a_z, alpha_x, alpha_y, alpha_z\n")
-    return Fixture("strayscanner", root, seq, list(range(n)), 1e-3, 0.06)
+    kept = list(range(n if video_frames is None else video_frames))
+    return Fixture("strayscanner", root, seq, kept, 1e-3, 0.06, medium_dropped=True)
 
 
 WRITERS = {

@@ -25,8 +25,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--force", action="store_true", help="replace a non-empty --out")
     p.add_argument("--resolution", choices=("depth", "color"), default="depth",
                    help="phone captures: shrink colour to the depth size (default) or enlarge depth")
-    p.add_argument("--min-confidence", type=int, default=1,
-                   help="phone captures: keep depth with confidence >= this (0 low, 1 medium, 2 high)")
+    p.add_argument("--min-confidence", type=int, default=None,
+                   help="phone captures: keep depth with confidence >= this (0 low, 1 medium, 2 high; default 2)")
 
 
 def write_tum(source, out_dir: Path, progress=None) -> dict:

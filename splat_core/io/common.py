@@ -10,10 +10,14 @@ Policies every reader follows (stated once here):
   `resolution="depth"` (default) shrinks colour to the depth size with area averaging,
   `resolution="color"` enlarges depth to the colour size with nearest neighbour. Depth is never
   blended. Intrinsics are scaled with `Intrinsics.scaled`.
-- Phone confidence maps (0 low, 1 medium, 2 high): depth with confidence below `min_confidence`
-  becomes invalid. Default 1 drops only low-confidence pixels (flying pixels at depth edges and
-  far range), which keeps most of the surface; pass `min_confidence=2` for high-confidence depth
-  only, or 0 to keep everything.
+- Phone confidence maps (ARKit's 0 low, 1 medium, 2 high): depth with confidence below
+  `min_confidence` becomes invalid. Default 2 (high only), as viser's Record3D loader, usa's
+  reader, concept-graphs' converter and Stray Scanner's own `convert_to_open3d.py` do for
+  reconstruction (capture_layouts.md); the map is built from depth, and medium-confidence pixels
+  are where flying pixels at depth edges and far range live. StrayVisualizer's point-cloud view
+  defaults to 1: pass `min_confidence=1` for that denser, noisier depth, or 0 to keep everything.
+- Intrinsics that vary per frame (ARKit refocuses) are given per frame when the capture stores
+  them; `intrinsics` is then the capture's nominal camera.
 """
 
 from __future__ import annotations
@@ -33,6 +37,7 @@ from ..frame import Frame, resize_to
 from .source import FrameSource
 
 RESOLUTIONS = ("depth", "color")
+DEFAULT_MIN_CONFIDENCE = 2  # ARKit high confidence only (see above)
 
 
 # ----------------------------------------------------------------------------- the base reader
@@ -48,12 +53,12 @@ class IndexedCapture(FrameSource):
 
     format_name = "unknown"
 
-    def __init__(self, path, *, resolution: str = "depth", min_confidence: int = 1):
+    def __init__(self, path, *, resolution: str = "depth", min_confidence: int | None = None):
         if resolution not in RESOLUTIONS:
             raise InputError(f"resolution must be one of {RESOLUTIONS}, got {resolution!r}")
         self.path = Path(path)
         self.resolution = resolution
-        self.min_confidence = int(min_confidence)
+        self.min_confidence = DEFAULT_MIN_CONFIDENCE if min_confidence is None else int(min_confidence)
         self.warnings: list[str] = []
         self.invalid_depth_pixels = 0  # NaN / inf / negative / "no reading" pixels seen so far
         self._timestamps = np.zeros(0)
@@ -71,6 +76,10 @@ class IndexedCapture(FrameSource):
 
     def _read_confidence(self, i: int) -> np.ndarray | None:
         return None
+
+    def _frame_color_intr(self, i: int) -> Intrinsics:
+        """Intrinsics of frame i's colour image as stored (override for per-frame intrinsics)."""
+        return self._color_intr
 
     def _name(self, i: int, kind: str) -> str:
         """The file behind frame i's colour/depth, for error messages."""
@@ -99,10 +108,11 @@ class IndexedCapture(FrameSource):
 
     @property
     def intrinsics(self) -> Intrinsics:
+        return self._at_working_size(self._color_intr)
+
+    def _at_working_size(self, intr: Intrinsics) -> Intrinsics:
         w, h = self.size
-        if (w, h) == self.color_size:
-            return self._color_intr
-        return self._color_intr.scaled(w, h)
+        return intr if (w, h) == (intr.width, intr.height) else intr.scaled(w, h)
 
     @property
     def has_reference_poses(self) -> bool:
@@ -141,14 +151,13 @@ class IndexedCapture(FrameSource):
                 raise InputError(f"{self._name(i, 'confidence')}: confidence map is {conf.shape[1]}x{conf.shape[0]}, "
                                  f"expected the depth size {depth.shape[1]}x{depth.shape[0]}")
             depth = np.where(conf >= self.min_confidence, depth, np.float32(0)).astype(np.float32)
-        intr = self.intrinsics
+        intr = self._at_working_size(self._frame_color_intr(i))
         if color.shape[:2] != (intr.height, intr.width):
             color = np.clip(resize_to(color, intr, False), 0.0, 1.0)
         depth = resize_to(depth, intr, True)
         T = self._c2w[i] if self._c2w else None
         return Frame(i, float(self._timestamps[i]), np.ascontiguousarray(color, dtype=np.float32),
-                     np.ascontiguousarray(depth, dtype=np.float32), self.intrinsics,
-                     None if T is None else T.copy())
+                     np.ascontiguousarray(depth, dtype=np.float32), intr, None if T is None else T.copy())
 
     def describe(self) -> str:
         w, h = self.size
@@ -312,6 +321,25 @@ def make_intrinsics(fx, fy, cx, cy, width, height, where: str) -> Intrinsics:
         raise InputError(f"{where}: {e}") from None
     except (TypeError, ValueError) as e:
         raise InputError(f"{where}: bad intrinsics ({e})") from None
+
+
+def intrinsics_for_image(fx, fy, cx, cy, width, height, where: str, sensor_sizes=()):
+    """K from a file, applied to the (width x height) images it describes.
+
+    Exports that resize images can keep the intrinsics of the sensor's resolution (ScanNet's
+    SensReader with `image_size`; a Stray Scanner video smaller than camera_matrix.csv). A principal
+    point more than a quarter of the image away from its centre means K was written for another
+    size: the first of `sensor_sizes` centred on it, else twice the principal point. Returns
+    (intrinsics at width x height, the size K was written for when it had to be scaled, else None).
+    """
+    def centred(w, h, tol):
+        return abs(2 * (cx + 0.5) / w - 1) <= tol and abs(2 * (cy + 0.5) / h - 1) <= tol
+
+    if width <= 0 or height <= 0 or centred(width, height, 0.25):  # (make_intrinsics refuses a bad size)
+        return make_intrinsics(fx, fy, cx, cy, width, height, where), None
+    kw, kh = next(((w, h) for w, h in sensor_sizes if centred(w, h, 0.1)),
+                  (int(round(2 * cx + 1)), int(round(2 * cy + 1))))
+    return make_intrinsics(fx, fy, cx, cy, kw, kh, where).scaled(width, height), (kw, kh)
 
 
 def image_size(data: bytes, name: str) -> tuple[int, int]:

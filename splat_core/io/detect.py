@@ -41,7 +41,7 @@ def _stray_markers(p: Path):
 
 def _nerfcapture_markers(p: Path):
     return [("transforms.json", (p / "transforms.json").is_file()),
-            ("depth/", (p / "depth").is_dir())]
+            ("depth/ or images/", (p / "depth").is_dir() or (p / "images").is_dir())]
 
 
 def _scannetpp_markers(p: Path):
@@ -67,23 +67,31 @@ def _tum_markers(p: Path):
 FORMATS: dict[str, FormatInfo] = {f.name: f for f in [
     FormatInfo("record3d", "splat_core.io.record3d", "Record3DCapture",
                "a .r3d file, or its unzipped folder with metadata and rgbd/<i>.jpg/.depth/.conf",
-               "Record3D iPhone app (LiDAR): export the recording in its own .r3d format and copy the file over",
+               "Record3D iPhone app (LiDAR): export the recording in the app's own .r3d format (not the EXR+JPG "
+               "sequence) and copy the file over",
                _record3d_markers),
     FormatInfo("strayscanner", "splat_core.io.strayscanner", "StrayScannerCapture",
-               "rgb.mp4, depth/<i:06>.png, odometry.csv, camera_matrix.csv (confidence/ optional)",
+               "rgb.mp4, depth/<i:06>.png (or older .npy), odometry.csv, camera_matrix.csv (confidence/ optional)",
                "Stray Scanner iPhone app (LiDAR): record, then copy the scan folder off the phone (Files app / Finder)",
                _stray_markers),
     FormatInfo("nerfcapture", "splat_core.io.nerfcapture", "NeRFCaptureCapture",
-               "transforms.json with rgb/<i>.png and depth/<i>.png (uint16, 65535 = 10 m)",
-               "NeRFCapture iPhone app, offline mode: save the capture and copy its folder",
+               "transforms.json with rgb/<i>.png + depth/<i>.png, or images/<i>.png + images/<i>.depth.png "
+               "(uint16 depth, integer_depth_scale metres per unit); a folder or a zip",
+               "NeRFCapture iPhone app in online (streaming) mode, saved by `splatam capture nerfcapture`, SplaTAM's "
+               "scripts/nerfcapture2dataset.py or instant-ngp's scripts/nerfcapture2nerf.py; the app's offline "
+               "export has unusable depth and is refused",
                _nerfcapture_markers),
     FormatInfo("scannetpp", "splat_core.io.scannetpp", "ScanNetPPCapture",
-               "dslr/nerfstudio/transforms_undistorted.json, dslr/undistorted_images/, dslr/undistorted_depths/",
-               "ScanNet++ download, DSLR images undistorted and depth rendered with the ScanNet++ toolkit",
+               "dslr/nerfstudio/transforms_undistorted.json, dslr/undistorted_images/, and dslr/undistorted_depths/ "
+               "or dslr/render_depth/ with dslr/nerfstudio/transforms.json",
+               "ScanNet++ DSLR download, then either SplaTAM's toolkit fork Nik-V9/scannetpp (render depth, then its "
+               "dslr.undistort writes undistorted_depths/) or the official toolkit (dslr.undistort, then "
+               "common.render with render_dslr: True writes fisheye render_depth/, undistorted by this reader)",
                _scannetpp_markers),
     FormatInfo("scannet", "splat_core.io.scannet", "ScanNetCapture",
                "color/<n>.jpg, depth/<n>.png (mm), pose/<n>.txt, optional intrinsic/intrinsic_color.txt",
-               "ScanNet .sens file exported with ScanNet's SensReader (color, depth, pose, intrinsic)",
+               "ScanNet .sens file exported with ScanNet's SensReader (color, depth, pose, intrinsic); colour "
+               "exported resized is fine (the sensor-size intrinsics are scaled to it)",
                _scannet_markers),
     FormatInfo("replica", "splat_core.io.replica", "ReplicaCapture",
                "results/frame*.jpg, results/depth*.png (x6553.5), traj.txt (row-major 4x4 c2w per line)",
@@ -113,8 +121,10 @@ def detect_format(path) -> str:
             store = ZipStore(path)  # raises on a damaged archive
             if store.exists("metadata") or store.exists("metadata.json"):
                 return "record3d"
-            raise InputError(f"{path}: archive has no Record3D 'metadata' file; unzip other captures and "
-                             f"pass the folder")
+            if store.exists("transforms.json"):
+                return "nerfcapture"
+            raise InputError(f"{path}: archive has neither Record3D's 'metadata' nor NeRFCapture's transforms.json; "
+                             f"unzip other captures and pass the folder")
         raise InputError(f"{path}: a file; pass a capture folder or a Record3D .r3d file ({format_help()})")
     if not any(path.iterdir()):
         raise InputError(f"{path}: folder is empty")

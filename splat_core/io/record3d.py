@@ -1,15 +1,18 @@
 """Record3D: a .r3d file (a zip, read directly) or its unzipped folder.
 
 metadata (JSON): K = 9 numbers column-major for the RGB image (w x h), dw/dh depth size, fps,
-poses[i] = [qx, qy, qz, qw, tx, ty, tz] c2w in ARKit/OpenGL camera axes, optional frameTimestamps.
+poses[i] = [qx, qy, qz, qw, tx, ty, tz] c2w in ARKit/OpenGL camera axes, optional frameTimestamps
+and perFrameIntrinsicCoeffs ([fx, fy, cx, cy] per frame at the RGB size; used per frame).
 rgbd/<i>.jpg colour; rgbd/<i>.depth LZFSE-compressed float32 metres; rgbd/<i>.conf LZFSE uint8
 confidence (0 low, 1 medium, 2 high).
 
 Depth arrays are row-major images in the same orientation as the colour image: a portrait
-capture stores the 256x192 LiDAR map as 256 rows x 192 columns. When dw/dh in the metadata are
-given in the sensor's landscape order, the reader picks the row/column order that matches the
-colour image's orientation. Depth and confidence are brought together with colour to one working
-resolution (see common.py), low-confidence depth masked (`min_confidence`, default 1).
+capture (w < h) stores the 256x192 LiDAR map as 256 rows x 192 columns, and its metadata says
+dw=192, dh=256 (capture_layouts.md). dw/dh given in the other order are swapped to match the
+colour image; files without dw/dh get the depth shape from the decoded size (256x192 LiDAR,
+640x480 front camera, or the RGB size), oriented like w/h. Depth and confidence are brought
+together with colour to one working resolution (see common.py); depth below `min_confidence` is
+masked (default 2, high only, like the public Record3D readers).
 """
 
 from __future__ import annotations
@@ -65,15 +68,6 @@ class Record3DCapture(IndexedCapture):
             raise InputError(f"{mlabel}: poses must be a list of [qx, qy, qz, qw, tx, ty, tz], got shape {poses.shape}")
         self._color_intr = make_intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], w, h, mlabel)
 
-        # Depth layout: (rows, cols) in the colour image's orientation.
-        dw, dh = int(meta.get("dw", w)), int(meta.get("dh", h))
-        rows, cols = dh, dw
-        if rows != cols and (cols > rows) != (w > h):
-            rows, cols = cols, rows
-        self._depth_shape = (rows, cols)
-        if (cols, rows) != (w, h):
-            self._depth_size = (cols, rows)
-
         names = self.store.names()
         jpgs = {int(m.group(1)) for n in names if (m := re.match(r"^rgbd/(\d+)\.jpe?g$", n))}
         n = len(poses)
@@ -85,6 +79,11 @@ class Record3DCapture(IndexedCapture):
             self.warn(f"{n - len(keep)} of {n} frames have no .depth file (skipped)")
         self._ids = keep
         self._has_conf = {i: self.store.exists(f"rgbd/{i}.conf") for i in keep}
+        self._depth_shape = self._depth_layout(meta, w, h, mlabel)
+        rows, cols = self._depth_shape
+        if (cols, rows) != (w, h):
+            self._depth_size = (cols, rows)
+        self._frame_intr = self._per_frame_intrinsics(meta, n, w, h, mlabel)
 
         fps = float(meta.get("fps", 30) or 30)
         stamps_all = np.asarray(meta.get("frameTimestamps", []), dtype=np.float64)
@@ -104,6 +103,43 @@ class Record3DCapture(IndexedCapture):
             c2w.append(c2w_opengl_to_opencv(pose_matrix(quat_to_rotmat_np(q / np.linalg.norm(q)), [tx, ty, tz])))
         self._finish(stamps, c2w, f"no frame in {self.path} has depth")
 
+    def _depth_layout(self, meta, w, h, mlabel) -> tuple[int, int]:
+        """(rows, cols) of the depth arrays, in the colour image's orientation."""
+        if "dw" in meta and "dh" in meta:
+            try:
+                dims = sorted([int(meta["dw"]), int(meta["dh"])])
+            except (TypeError, ValueError):
+                raise InputError(f"{mlabel}: dw and dh must be integers, got {meta['dw']!r}, {meta['dh']!r}") from None
+            short, long = dims
+        elif not self._ids:
+            return h, w
+        else:  # older files: the decoded size tells (LiDAR, front camera, or depth at the RGB size)
+            n = self._decode_raw(0, "depth", np.float32).size
+            sizes = [(256, 192), (640, 480), (max(w, h), min(w, h))]
+            match = next((s for s in sizes if s[0] * s[1] == n), None)
+            if match is None:
+                raise InputError(f"{self._name(0, 'depth')}: decoded {n} values; without dw/dh in the metadata "
+                                 f"expected 256x192 (LiDAR), 640x480 (front camera) or {w}x{h} (the RGB size)")
+            long, short = match
+        return (long, short) if h > w else (short, long)
+
+    def _per_frame_intrinsics(self, meta, n, w, h, mlabel):
+        coeffs = meta.get("perFrameIntrinsicCoeffs")
+        if not coeffs:
+            return None
+        try:
+            c = np.asarray(coeffs, dtype=np.float64)
+        except (TypeError, ValueError):
+            c = None
+        if c is None or c.shape != (n, 4):
+            self.warn(f"{mlabel}: perFrameIntrinsicCoeffs is not one [fx, fy, cx, cy] per pose; "
+                      f"using K for every frame")
+            return None
+        return {i: make_intrinsics(*c[i], w, h, f"{mlabel} (perFrameIntrinsicCoeffs[{i}])") for i in self._ids}
+
+    def _frame_color_intr(self, i):
+        return self._color_intr if self._frame_intr is None else self._frame_intr[self._ids[i]]
+
     def _name(self, i, kind):
         ext = {"color": self._ext[self._ids[i]], "depth": "depth", "confidence": "conf"}[kind]
         return self.store.label(f"rgbd/{self._ids[i]}.{ext}")
@@ -111,14 +147,19 @@ class Record3DCapture(IndexedCapture):
     def _read_color(self, i):
         return decode_color(self.store.read(f"rgbd/{self._ids[i]}.{self._ext[self._ids[i]]}"), self._name(i, "color"))
 
-    def _decode(self, i, kind, dtype):
+    def _decode_raw(self, i, kind, dtype):
         label = self._name(i, kind)
         raw = _lzfse_decompress(self.store.read(f"rgbd/{self._ids[i]}.{'depth' if kind == 'depth' else 'conf'}"), label)
+        if len(raw) % np.dtype(dtype).itemsize:
+            raise InputError(f"{label}: decoded {len(raw)} bytes, not a whole number of {np.dtype(dtype).name} values")
+        return np.frombuffer(raw, dtype=dtype)
+
+    def _decode(self, i, kind, dtype):
+        arr = self._decode_raw(i, kind, dtype)
         rows, cols = self._depth_shape
-        arr = np.frombuffer(raw, dtype=dtype)
         if arr.size != rows * cols:
-            raise InputError(f"{label}: decoded {arr.size} values, expected {rows}x{cols} = {rows * cols} "
-                             f"(dw/dh in metadata)")
+            raise InputError(f"{self._name(i, kind)}: decoded {arr.size} values, expected {rows}x{cols} = "
+                             f"{rows * cols} (dw/dh in the metadata, else the first frame's size)")
         return arr.reshape(rows, cols)
 
     def _read_depth(self, i):

@@ -1,11 +1,14 @@
-"""ScanNet (v1, as exported by its SensReader): color/<n>.jpg (1296x968), depth/<n>.png
+"""ScanNet (v1/v2, as exported by its SensReader): color/<n>.jpg (1296x968), depth/<n>.png
 (640x480 uint16 millimetres), pose/<n>.txt (4x4 c2w, OpenCV axes; -inf rows mark frames without a
-pose), intrinsic/intrinsic_color.txt (4x4 K for the colour images) and intrinsic_depth.txt.
+pose), intrinsic/intrinsic_color.txt (4x4 K of the colour sensor) and intrinsic_depth.txt.
 
-Frames pair by their number. By default colour is brought down to the depth resolution with the
-colour intrinsics scaled (`resolution="color"` enlarges depth instead). Without an intrinsic/
-folder or camera file, the typical ScanNet colour camera (1169.62 1167.11 646.30 489.93 at
-1296x968) is assumed, with a warning. Timestamps: frame number / 30 s.
+SensorData.py writes the intrinsics of the sensor's own resolution even when it exports images
+resized (`image_size`): K is scaled from the size it was written for (1296x968 colour, 640x480
+depth, told apart from the image's size by the principal point) to the images found, with a
+warning. Frames pair by their number. By default colour is brought down to the depth resolution
+with the colour intrinsics scaled (`resolution="color"` enlarges depth instead). Without an
+intrinsic/ folder or camera file, the typical ScanNet colour camera (1169.62 1167.11 646.30 489.93
+at 1296x968) is assumed, with a warning. Timestamps: frame number / 30 s.
 """
 
 from __future__ import annotations
@@ -15,11 +18,13 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, find_camera_file, load_camera_file, make_intrinsics
+from .common import (IndexedCapture, check_pose, find_camera_file, intrinsics_for_image, load_camera_file,
+                     make_intrinsics)
 from .images import decode_depth_image, read_bytes, read_color, read_depth_png
 
 DEPTH_SCALE = 1000.0
 TYPICAL_COLOR_K = dict(fx=1169.62, fy=1167.11, cx=646.30, cy=489.93, width=1296, height=968)
+SENSOR_COLOR_SIZE, SENSOR_DEPTH_SIZE = (1296, 968), (640, 480)
 FPS = 30.0
 
 
@@ -71,11 +76,9 @@ class ScanNetCapture(IndexedCapture):
         kc, kd = root / "intrinsic" / "intrinsic_color.txt", root / "intrinsic" / "intrinsic_depth.txt"
         cam_file = find_camera_file(root)
         if kc.is_file():
-            K = _read_matrix(kc)
-            self._color_intr = make_intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], cw, ch, str(kc))
+            self._color_intr = self._sensor_intrinsics(kc, cw, ch, SENSOR_COLOR_SIZE)
         elif kd.is_file():
-            K = _read_matrix(kd)
-            self._color_intr = make_intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], dw, dh, str(kd)).scaled(cw, ch)
+            self._color_intr = self._sensor_intrinsics(kd, dw, dh, SENSOR_DEPTH_SIZE).scaled(cw, ch)
         elif cam_file:
             cam = load_camera_file(cam_file)
             intr = make_intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam.get("width", cw),
@@ -96,6 +99,15 @@ class ScanNetCapture(IndexedCapture):
         if n_inf:
             self.warn(f"{n_inf} frames have an invalid (-inf) pose in pose/")
         self._finish(np.asarray(keep, dtype=np.float64) / FPS, c2w, f"no frames in {root}")
+
+    def _sensor_intrinsics(self, path, width, height, sensor_size):
+        K = _read_matrix(path)
+        intr, written_for = intrinsics_for_image(K[0, 0], K[1, 1], K[0, 2], K[1, 2], width, height, str(path),
+                                                 [sensor_size])
+        if written_for:
+            self.warn(f"{path.name} is for {written_for[0]}x{written_for[1]} images; scaled to the {width}x{height} "
+                      f"images exported")
+        return intr
 
     def _name(self, i, kind):
         return str(self._rgb[i] if kind == "color" else self._depth[i])

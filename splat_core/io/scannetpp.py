@@ -1,7 +1,14 @@
-"""ScanNet++ DSLR (undistorted): dslr/nerfstudio/transforms_undistorted.json (fl_x fl_y cx cy w h,
-`frames` and `test_frames`, each with file_path, transform_matrix = 4x4 c2w in OpenGL camera
-axes, is_bad), dslr/undistorted_images/<file_path>, dslr/undistorted_depths/<stem>.png (uint16 mm,
-rendered from the mesh).
+"""ScanNet++ DSLR (undistorted): dslr/nerfstudio/transforms_undistorted.json (PINHOLE fl_x fl_y cx
+cy w h, `frames` and `test_frames`, each with file_path, transform_matrix = 4x4 c2w in OpenGL
+camera axes, is_bad), dslr/undistorted_images/<file_path>, and depth rendered from the mesh as
+uint16 millimetres (0 invalid), from one of two routes (capture_layouts.md section 5):
+
+- SplaTAM's fork of the toolkit (Nik-V9/scannetpp): dslr/undistorted_depths/<stem>.png, already
+  undistorted like the colour images (read as is);
+- the official toolkit: `common/render.py` (render_dslr: True) writes dslr/render_depth/<stem>.png
+  in the fisheye (OPENCV_FISHEYE) camera of dslr/nerfstudio/transforms.json; this reader
+  undistorts it to the pinhole camera of transforms_undistorted.json with nearest-neighbour
+  sampling (depth is never blended; outside the fisheye image is 0), as the fork does.
 
 `split`: "all" (default: train and test frames together in capture order, i.e. by file name),
 "train" or "test". Frames marked is_bad are skipped (counted) unless include_bad=True.
@@ -15,12 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import c2w_opengl_to_opencv
+from ..camera import Intrinsics, c2w_opengl_to_opencv
 from ..errors import InputError
 from .common import IndexedCapture, check_pose, make_intrinsics
-from .images import decode_depth_image, read_bytes, read_color, read_depth_png
+from .images import decode_depth_image, raw_depth_to_metres, read_bytes, read_color, read_depth_png
 
 TRANSFORMS = Path("nerfstudio") / "transforms_undistorted.json"
+FISHEYE_TRANSFORMS = Path("nerfstudio") / "transforms.json"
 DEPTH_SCALE = 1000.0
 
 
@@ -62,6 +70,9 @@ class ScanNetPPCapture(IndexedCapture):
             entries = [f for f in entries if not f.get("is_bad", False)]
             self.warn(f"{n_bad} frames marked is_bad skipped")
         images, depths = dslr / "undistorted_images", dslr / "undistorted_depths"
+        fisheye = not depths.is_dir() and (dslr / "render_depth").is_dir()
+        if fisheye:
+            depths = dslr / "render_depth"
         self._rgb, self._depth, c2w = [], [], []
         no_depth = 0
         for f in entries:
@@ -76,12 +87,16 @@ class ScanNetPPCapture(IndexedCapture):
             c2w.append(None if T is None else c2w_opengl_to_opencv(T))
         if no_depth:
             self.warn(f"{no_depth} frames have no depth in {depths} (skipped)")
+        if not self._depth and not depths.is_dir():
+            raise InputError(f"{dslr}: no depth: expected undistorted_depths/ (SplaTAM's toolkit fork) or "
+                             f"render_depth/ (official toolkit, common/render.py with render_dslr: True)")
         try:
             self._color_intr = make_intrinsics(meta["fl_x"], meta["fl_y"], meta["cx"], meta["cy"], meta["w"],
                                                meta["h"], str(jpath))
         except KeyError as e:
             raise InputError(f"{jpath}: missing {e.args[0]} (needs fl_x fl_y cx cy w h)") from None
-        if self._depth:
+        self._fisheye = FisheyeUndistortion(dslr / FISHEYE_TRANSFORMS, self._color_intr) if fisheye else None
+        if self._depth and not fisheye:  # undistorted fisheye depth has the colour size
             dh, dw = decode_depth_image(read_bytes(self._depth[0]), str(self._depth[0])).shape[:2]
             if (dw, dh) != self.color_size:
                 self._depth_size = (dw, dh)
@@ -94,4 +109,39 @@ class ScanNetPPCapture(IndexedCapture):
         return read_color(self._rgb[i])
 
     def _read_depth(self, i):
-        return read_depth_png(self._depth[i], DEPTH_SCALE)
+        if self._fisheye is None:
+            return read_depth_png(self._depth[i], DEPTH_SCALE)
+        raw = decode_depth_image(read_bytes(self._depth[i]), str(self._depth[i]))
+        return raw_depth_to_metres(self._fisheye.apply(raw, str(self._depth[i])), DEPTH_SCALE, str(self._depth[i]))
+
+
+class FisheyeUndistortion:
+    """Nearest-neighbour resampling of fisheye images (transforms.json: OPENCV_FISHEYE fl_x fl_y cx cy
+    k1..k4 w h) onto the pinhole camera of transforms_undistorted.json, as the toolkits map colour."""
+
+    def __init__(self, fisheye_json: Path, pinhole: Intrinsics):
+        if not fisheye_json.is_file():
+            raise InputError(f"{fisheye_json}: not found; needed to undistort render_depth/ (its fisheye camera)")
+        try:
+            src = json.loads(read_bytes(fisheye_json))
+            K = np.array([[src["fl_x"], 0, src["cx"]], [0, src["fl_y"], src["cy"]], [0, 0, 1]], dtype=np.float64)
+            D = np.array([src[k] for k in ("k1", "k2", "k3", "k4")], dtype=np.float64)
+            self.size = (int(src["w"]), int(src["h"]))
+        except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as e:
+            raise InputError(f"{fisheye_json}: needed to undistort render_depth/: fl_x fl_y cx cy k1 k2 k3 k4 w h "
+                             f"of the fisheye camera ({type(e).__name__}: {e})") from None
+        if str(src.get("camera_model", "OPENCV_FISHEYE")) != "OPENCV_FISHEYE":
+            raise InputError(f"{fisheye_json}: camera_model {src['camera_model']!r}, expected OPENCV_FISHEYE")
+        import cv2
+
+        self._maps = cv2.fisheye.initUndistortRectifyMap(K, D, np.eye(3), pinhole.K, (pinhole.width, pinhole.height),
+                                                         cv2.CV_32FC1)
+
+    def apply(self, raw: np.ndarray, name: str) -> np.ndarray:
+        import cv2
+
+        if (raw.shape[1], raw.shape[0]) != self.size:
+            raise InputError(f"{name}: depth is {raw.shape[1]}x{raw.shape[0]}, expected the fisheye camera's "
+                             f"{self.size[0]}x{self.size[1]} (dslr/{FISHEYE_TRANSFORMS.as_posix()})")
+        return cv2.remap(raw, *self._maps, interpolation=cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=0)

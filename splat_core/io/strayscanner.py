@@ -2,10 +2,11 @@
 confidence/<i:06>.png (0/1/2), odometry.csv, camera_matrix.csv (3x3 K for the video frames).
 
 odometry.csv: header `timestamp, frame, x, y, z, qx, qy, qz, qw` (c2w); older exports have no
-timestamp/frame columns (then row i is video frame i at i / fps s). The poses are used as
-OpenCV camera axes, as the app's own visualiser does (formats.md; `splatam info` re-checks this
-with the reprojection test). camera_matrix.csv describes the full-resolution video (1920x1440);
-when the video is smaller, K is scaled to it, with a warning.
+timestamp/frame columns (then row i is video frame i at i / fps s). The poses are OpenCV camera
+axes: the app converts ARKit's camera axes before writing (OdometryEncoder.swift, see
+capture_layouts.md). camera_matrix.csv describes the full-resolution video (1920x1440); when the
+video is smaller, K is scaled to it, with a warning. Rows for frames beyond the last one rgb.mp4
+decodes are dropped with a warning. Confidence: default high only (common.py says why).
 
 Video frames decode lazily: sequential reads continue the open decoder, short forward jumps skip
 frames with grab(), other jumps seek; the last few decoded frames are cached.
@@ -20,7 +21,7 @@ import numpy as np
 
 from ..camera import pose_matrix, quat_to_rotmat_np
 from ..errors import InputError
-from .common import IndexedCapture, make_intrinsics, sort_by_time
+from .common import IndexedCapture, intrinsics_for_image, sort_by_time
 from .images import color_to_float, decode_depth_image, raw_depth_to_metres, read_bytes, sanitize_depth
 
 DEPTH_SCALE = 1000.0
@@ -103,14 +104,11 @@ class StrayScannerCapture(IndexedCapture):
             raise InputError(f"{root / 'camera_matrix.csv'}: expected a 3x3 matrix, got shape {K.shape}")
         self.video = VideoFrames(root / "rgb.mp4")
         vw, vh = self.video.width, self.video.height
-        fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
-        kw, kh = vw, vh
-        if abs(2 * (cx + 0.5) / max(vw, 1) - 1) > 0.25:  # K is for another resolution than the video
-            kw, kh = (1920, 1440) if abs(cx - 960) < 200 and abs(cy - 720) < 200 else \
-                (int(round(2 * cx + 1)), int(round(2 * cy + 1)))
-            self.warn(f"camera_matrix.csv looks like it is for {kw}x{kh}; scaled to the {vw}x{vh} video")
-        intr = make_intrinsics(fx, fy, cx, cy, kw, kh, str(root / "camera_matrix.csv"))
-        self._color_intr = intr if (kw, kh) == (vw, vh) else intr.scaled(vw, vh)
+        self._color_intr, written_for = intrinsics_for_image(K[0, 0], K[1, 1], K[0, 2], K[1, 2], vw, vh,
+                                                             str(root / "camera_matrix.csv"), [(1920, 1440)])
+        if written_for:
+            self.warn(f"camera_matrix.csv looks like it is for {written_for[0]}x{written_for[1]}; "
+                      f"scaled to the {vw}x{vh} video")
 
         opath = root / "odometry.csv"
         header, rows = _read_csv(opath)
@@ -138,22 +136,25 @@ class StrayScannerCapture(IndexedCapture):
         order = sort_by_time(stamps, str(opath), self.warnings)
         R, frame_ids, stamps = R[order], frame_ids[order], stamps[order]
 
+        n_video = self._decodable_frames(int(frame_ids.max()) + 1)
         self._frames, c2w, keep_t = [], [], []
-        no_depth = 0
+        no_depth = beyond = 0
         for r, f, t in zip(R, frame_ids, stamps):
+            if f >= n_video:
+                beyond += 1
+                continue
             dep = self._depth_file(f)
             if dep is None:
                 no_depth += 1
                 continue
-            if self.video.count > 0 and f >= self.video.count:
-                raise InputError(f"{opath}: frame {f} is beyond the {self.video.count} frames of rgb.mp4 "
-                                 f"(counts must match)")
             q = np.array([r[col["qw"]], r[col["qx"]], r[col["qy"]], r[col["qz"]]])
             t3 = [r[col["x"]], r[col["y"]], r[col["z"]]]
             ok = np.all(np.isfinite(q)) and np.all(np.isfinite(t3)) and np.linalg.norm(q) > 1e-6
             self._frames.append((int(f), dep))
             c2w.append(pose_matrix(quat_to_rotmat_np(q / np.linalg.norm(q)), t3) if ok else None)
             keep_t.append(t)
+        if beyond:
+            self.warn(f"rgb.mp4 decodes {n_video} frames; {beyond} later row(s) of {opath.name} dropped")
         if no_depth:
             self.warn(f"{no_depth} of {len(R)} odometry rows have no depth file (skipped)")
         if self._frames:
@@ -161,6 +162,21 @@ class StrayScannerCapture(IndexedCapture):
             if (d0.shape[1], d0.shape[0]) != self.color_size:
                 self._depth_size = (d0.shape[1], d0.shape[0])
         self._finish(np.asarray(keep_t), c2w, f"no odometry row of {opath} has a depth file in depth/")
+
+    def _decodable_frames(self, needed: int) -> int:
+        """How many leading video frames decode, up to `needed`. The app's video can hold a frame
+        less than odometry.csv has rows (its first sample is stamped -1/60 s; capture_layouts.md):
+        the container's count is checked by decoding the last frame, stepping back if it fails."""
+        n = min(self.video.count, needed) if self.video.count > 0 else needed
+        for _ in range(3):
+            try:
+                self.video[n - 1]
+                return n
+            except InputError:
+                n -= 1
+                if n <= 0:
+                    break
+        return max(n, 0)
 
     def _depth_file(self, f: int):
         for ext in (".png", ".npy"):
