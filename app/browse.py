@@ -19,11 +19,9 @@ from .snapshot import KeyframeView, MapSnapshot, freeze_gaussians, frozen, make_
 
 
 def read_map(path: Path) -> dict:
-    from splat_core.io.ply import read_ply, read_splat
+    from splat_core.io.map_files import read_map_file
 
-    if path.suffix.lower() == ".splat":
-        return read_splat(path)
-    return read_ply(path)
+    return read_map_file(path)
 
 
 def intrinsics_from_run(run_dir: Path) -> Intrinsics | None:

@@ -21,7 +21,7 @@ SUBCOMMANDS = {
     "run": ("app.commands.run", "run SLAM headless on a capture and write a run folder"),
     "info": ("app.commands.info", "describe a capture: format, frames, intrinsics, depth, poses"),
     "convert": ("app.commands.convert", "convert any supported capture to the TUM RGB-D layout"),
-    "export": ("app.commands.export", "export a run's map as a 3DGS .ply or antimatter15 .splat"),
+    "export": ("app.commands.export", "export a run's map as .ply, .splat, .spz, compressed .ply or .html"),
     "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
 }
 

@@ -48,10 +48,10 @@ def main(args) -> int:
     import torch
 
     from app.browse import near_plane_of, read_map
-    from app.commands.export import map_path_of
     from app.images import colorize_depth, colorize_silhouette, to_uint8
     from splat_core.camera import invert_pose
     from splat_core.gaussians import Gaussians
+    from splat_core.io.map_files import map_path_of
     from splat_core.io.trajectory import read_tum_trajectory
     from splat_core.render import Renderer
 

@@ -1,6 +1,8 @@
 """Atomic file output: write to a temporary name beside the target, then rename.
 
 A crash (or Ctrl-C) mid-write leaves the previous good file in place, never a truncated one.
+The file gets the permissions a plain open() would give it (0o666 less the umask), not the
+temporary file's private 0o600.
 """
 
 from __future__ import annotations
@@ -10,6 +12,9 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
+_UMASK = os.umask(0)   # read once, at import (setting it is process-wide), and put back
+os.umask(_UMASK)
+
 
 @contextmanager
 def atomic_path(path):
@@ -18,6 +23,7 @@ def atomic_path(path):
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_UMASK)
     try:
         yield Path(tmp)
         os.replace(tmp, path)

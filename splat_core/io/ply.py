@@ -46,7 +46,7 @@ _PLY_TYPES = {
 
 # ----------------------------------------------------------------------------- helpers
 
-def _checked(arrays: dict) -> dict[str, np.ndarray]:
+def checked_arrays(arrays: dict) -> dict[str, np.ndarray]:
     """The five parameter arrays as float32 with consistent N, log_scales as N x 3."""
     try:
         means = np.asarray(arrays["means"], dtype=np.float32).reshape(-1, 3)
@@ -63,6 +63,14 @@ def _checked(arrays: dict) -> dict[str, np.ndarray]:
         raise ValueError(f"log_scales must be N x 1 or N x 3, got {log_scales.shape}")
     return dict(means=means, colors=colors, rotations=rotations, logit_opacities=logits,
                 log_scales=log_scales)
+
+
+def collapse_isotropic(log_scales: np.ndarray) -> np.ndarray:
+    """N x 3 log-scales as N x 1 when all three columns are equal (isotropic), else unchanged."""
+    if np.array_equal(log_scales[:, 0], log_scales[:, 1]) and np.array_equal(log_scales[:, 0],
+                                                                              log_scales[:, 2]):
+        return log_scales[:, :1].copy()
+    return log_scales
 
 
 def sigmoid(x: np.ndarray) -> np.ndarray:
@@ -85,7 +93,7 @@ def ply_bytes(arrays: dict) -> bytes:
 
 
 def _ply_parts(arrays: dict) -> tuple[bytes, bytes]:
-    a = _checked(arrays)
+    a = checked_arrays(arrays)
     n = a["means"].shape[0]
     table = np.zeros(n, dtype=np.dtype([(name, "<f4") for name in PLY_PROPERTIES]))
     for i, axis in enumerate("xyz"):
@@ -197,10 +205,7 @@ def read_ply(path) -> dict[str, np.ndarray]:
     col = lambda p: np.asarray(vertex[p], dtype=np.float32)  # noqa: E731
     scales = [col("scale_0")] + [col(f"scale_{i}") if f"scale_{i}" in names else col("scale_0")
                                  for i in (1, 2)]
-    log_scales = np.stack(scales, axis=1)
-    if np.array_equal(log_scales[:, 0], log_scales[:, 1]) and np.array_equal(log_scales[:, 0],
-                                                                              log_scales[:, 2]):
-        log_scales = log_scales[:, :1].copy()
+    log_scales = collapse_isotropic(np.stack(scales, axis=1))
     means = np.stack([col("x"), col("y"), col("z")], axis=1)
     colors = (0.5 + SH_C0 * np.stack([col(f"f_dc_{i}") for i in range(3)], axis=1)).astype(np.float32)
     return dict(
@@ -231,7 +236,7 @@ def _read_ascii_rows(f, dtype: np.dtype, count: int, path: Path) -> np.ndarray:
 # ----------------------------------------------------------------------------- .splat
 
 def splat_bytes(arrays: dict) -> bytes:
-    a = _checked(arrays)
+    a = checked_arrays(arrays)
     scales = np.exp(a["log_scales"].astype(np.float64))
     opacity = sigmoid(a["logit_opacities"])
     order = np.argsort(-(scales.prod(axis=1) * opacity), kind="stable")

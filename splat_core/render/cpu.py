@@ -36,7 +36,6 @@ holds `_KERNEL_LOCK` (the SLAM worker and the viewer both render).
 from __future__ import annotations
 
 import math
-import threading
 import time
 
 import numba
@@ -46,6 +45,7 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
+from ..parallel import NUMBA_LOCK
 from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 TILE = 16
@@ -56,7 +56,7 @@ LANES = 8        # a tile row is processed as TILE // LANES vectorised groups of
 # identically in forward and backward).
 SPAN_SLACK = 0.01
 
-_KERNEL_LOCK = threading.Lock()
+_KERNEL_LOCK = NUMBA_LOCK   # shared with other Numba-parallel code (splat_core/parallel.py)
 
 # Layout of the `consts` array handed to the kernels (in the working dtype).
 (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_T_MIN, _C_HALF, _C_ONE, _C_ZERO, _C_TWO, _C_255, _C_SLACK, _C_WIDTH,
