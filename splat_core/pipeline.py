@@ -35,7 +35,11 @@ from .slam import FrameResult, SplaTAM
 
 
 def open_input(path=None, format: str | None = None, **options) -> FrameSource:
-    """A capture (folder or .r3d/.zip, format detected) or, with no path, the synthetic demo scene."""
+    """A capture (folder or .r3d/.zip, format detected), the live `nerfcapture://` stream (options:
+    capture_dir, idle_timeout) or, with no path, the synthetic demo scene."""
+    if isinstance(path, str) and path.startswith("nerfcapture://"):
+        from .io.nerfcapture_stream import NeRFCaptureStream
+        return NeRFCaptureStream(url=path, **options)
     if path is None:
         from .synthetic import SyntheticSource
         return SyntheticSource(**options)
@@ -77,10 +81,18 @@ class Pipeline:
         self.source, self.config = source, config
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self.device = resolve_device(device)
-        self.indices = list(range(0, len(source), stride))[: max_frames if max_frames else None]
-        if not self.indices:
-            raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
-        self.total = len(self.indices)
+        # A live source (`live = True`, e.g. nerfcapture://) is pulled with next_frame(); its
+        # length is unknown, so `indices` grows as frames arrive and `total` is max_frames or None.
+        self.live = bool(getattr(source, "live", False))
+        if self.live and (stride != 1 or resume):
+            raise InputError("--stride and --resume do not apply to a live stream (rerun its capture folder instead)")
+        if self.live:
+            self.indices, self.total = [], max_frames or None
+        else:
+            self.indices = list(range(0, len(source), stride))[: max_frames if max_frames else None]
+            if not self.indices:
+                raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
+            self.total = len(self.indices)
         native = source.intrinsics
         width, height = config.resolution or (native.width, native.height)
         self.intrinsics = native.scaled(int(width), int(height))
@@ -94,10 +106,10 @@ class Pipeline:
             self._resume()
 
     # ------------------------------------------------------------------ frames
-    def frame(self, k: int) -> Frame:
-        """Processed frame k at the working resolution, depth cut at max_depth."""
+    def frame(self, k: int, raw: Frame | None = None) -> Frame:
+        """Processed frame k (or `raw`, frame k as read) at the working resolution, depth cut at max_depth."""
         i = self.indices[k]
-        frame = self.source[i]
+        frame = self.source[i] if raw is None else raw
         check_frame(frame, f"{getattr(self.source, 'path', 'input')} frame {i}")
         frame = resize_frame(frame, self.intrinsics.width, self.intrinsics.height)
         if self.config.max_depth:
@@ -106,9 +118,14 @@ class Pipeline:
 
     def step(self) -> FrameResult | None:
         k = len(self.records)
-        if k >= self.total:
+        if self.total is not None and k >= self.total:
             return None
-        frame = self.frame(k)
+        pulled = None
+        if self.live:
+            if (pulled := self.source.next_frame()) is None:   # the stream ended
+                return None
+            self.indices.append(pulled.index)
+        frame = self.frame(k, pulled)
         given = None
         if self.config.tracking.use_reference_poses:
             ref = self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0])
@@ -126,7 +143,7 @@ class Pipeline:
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
             is_keyframe=result.is_keyframe))
         every = self.config.checkpoint_every
-        if self.out_dir is not None and every and (k + 1) % every == 0 and k + 1 < self.total:
+        if self.out_dir is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
             self.save_checkpoint()
         return result
 
@@ -222,6 +239,8 @@ class Pipeline:
             if len(pairs) >= 2:
                 est, ref = zip(*pairs)
                 out["ate_mean_legacy_cm"] = 100.0 * float(M.ate_mean_legacy(np.array(est), np.array(ref)))
+        if self.live:
+            out.update(self.source.stats())   # received, dropped (never given to SLAM), rejected
         if self.device.type == "cuda":
             out["peak_gpu_memory_mb"] = torch.cuda.max_memory_allocated() / 2**20
         out.update(self.evaluate())
