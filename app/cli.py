@@ -19,6 +19,7 @@ from splat_core.errors import InputError
 
 SUBCOMMANDS = {
     "run": ("app.commands.run", "run SLAM headless on a capture and write a run folder"),
+    "capture": ("app.commands.capture", "record the NeRFCapture iPhone app's live stream as a capture folder"),
     "info": ("app.commands.info", "describe a capture: format, frames, intrinsics, depth, poses"),
     "convert": ("app.commands.convert", "convert any supported capture to the TUM RGB-D layout"),
     "export": ("app.commands.export", "export a run's map as .ply, .splat, .spz, compressed .ply or .html"),

@@ -217,7 +217,7 @@ class SlamWorker(threading.Thread):
             self._version += 1
             self._snapshot = MapSnapshot(
                 version=self._version, state=self._state, frame_index=self._last_frame_index,
-                total_frames=int(pipe.total), map_version=self._map_version,
+                total_frames=int(pipe.total or len(pipe.records)), map_version=self._map_version,
                 gaussians=self._map_arrays,
                 keyframes=self._keyframes(), intrinsics=pipe.intrinsics, near_plane=float(pipe.config.near_plane),
                 timestamps=frozen(np.asarray(self._timestamps, np.float64)),

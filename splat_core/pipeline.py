@@ -40,7 +40,11 @@ ENGINES = ("sequential", "live")
 
 
 def open_input(path=None, format: str | None = None, **options) -> FrameSource:
-    """A capture (folder or .r3d/.zip, format detected) or, with no path, the synthetic demo scene."""
+    """A capture (folder or .r3d/.zip, format detected), the live `nerfcapture://` stream (options:
+    capture_dir, idle_timeout) or, with no path, the synthetic demo scene."""
+    if isinstance(path, str) and path.startswith("nerfcapture://"):
+        from .io.nerfcapture_stream import NeRFCaptureStream
+        return NeRFCaptureStream(url=path, **options)
     if path is None:
         from .synthetic import SyntheticSource
         return SyntheticSource(**options)
@@ -108,16 +112,24 @@ class Pipeline:
         self.source, self.config = source, config
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self.device = resolve_device(device)
-        self.indices = list(range(0, len(source), stride))[: max_frames if max_frames else None]
-        if not self.indices:
-            raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
-        self.total = len(self.indices)
+        # A live source (`live = True`, e.g. nerfcapture://) is pulled with next_frame(); its
+        # length is unknown, so `indices` grows as frames arrive and `total` is max_frames or None.
+        self.streaming = bool(getattr(source, "live", False))
+        if self.streaming and (stride != 1 or resume):
+            raise InputError("--stride and --resume do not apply to a live stream (rerun its capture folder instead)")
+        if self.streaming:
+            self.indices, self.total = [], max_frames or None
+        else:
+            self.indices = list(range(0, len(source), stride))[: max_frames if max_frames else None]
+            if not self.indices:
+                raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
+            self.total = len(self.indices)
         native = source.intrinsics
         width, height = config.resolution or (native.width, native.height)
         self.intrinsics = native.scaled(int(width), int(height))
         self.slam = SplaTAM(config, self.intrinsics, device=self.device)
         self.slam.total_frames = self.total
-        self.live: LiveEngine | None = None     # the mapper thread of the live engine, once started
+        self.live_engine: LiveEngine | None = None     # the mapper thread of the live engine, once started
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
@@ -126,9 +138,9 @@ class Pipeline:
             self._resume()
 
     def _live_engine(self) -> LiveEngine:
-        if self.live is None:
-            self.live = LiveEngine(self.slam, self.config.live)
-        return self.live
+        if self.live_engine is None:
+            self.live_engine = LiveEngine(self.slam, self.config.live)
+        return self.live_engine
 
     def keyframes(self) -> list[Keyframe]:
         return list(self.slam.keyframes)
@@ -136,14 +148,14 @@ class Pipeline:
     def map_version(self) -> MapVersion:
         """The newest map that may be read from any thread (live: the mapper's latest version;
         sequential: a copy of the map made now, by the stepping thread)."""
-        version = self.slam.latest_version() if self.live is not None else None
+        version = self.slam.latest_version() if self.live_engine is not None else None
         return version if version is not None else self.slam.publish(len(self.slam.w2cs) - 1)
 
     # ------------------------------------------------------------------ frames
-    def frame(self, k: int) -> Frame:
-        """Processed frame k at the working resolution, depth cut at max_depth."""
+    def frame(self, k: int, raw: Frame | None = None) -> Frame:
+        """Processed frame k (or `raw`, frame k as read) at the working resolution, depth cut at max_depth."""
         i = self.indices[k]
-        frame = self.source[i]
+        frame = self.source[i] if raw is None else raw
         check_frame(frame, f"{getattr(self.source, 'path', 'input')} frame {i}")
         frame = resize_frame(frame, self.intrinsics.width, self.intrinsics.height)
         if self.config.max_depth:
@@ -152,9 +164,14 @@ class Pipeline:
 
     def step(self) -> FrameResult | None:
         k = len(self.records)
-        if k >= self.total:
+        if self.total is not None and k >= self.total:
             return None
-        frame = self.frame(k)
+        pulled = None
+        if self.streaming:
+            if (pulled := self.source.next_frame()) is None:   # the stream ended
+                return None
+            self.indices.append(pulled.index)
+        frame = self.frame(k, pulled)
         given = None
         if self.config.tracking.use_reference_poses:
             ref = self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0])
@@ -178,7 +195,7 @@ class Pipeline:
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
             is_keyframe=result.is_keyframe))
         every = self.config.checkpoint_every
-        if self.out_dir is not None and every and (k + 1) % every == 0 and k + 1 < self.total:
+        if self.out_dir is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
             self.save_checkpoint()
         return result
 
@@ -217,8 +234,8 @@ class Pipeline:
                     elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
-        if self.live is not None:
-            self.live.drain()           # a consistent state: every tracked frame is in the map
+        if self.live_engine is not None:
+            self.live_engine.drain()           # a consistent state: every tracked frame is in the map
         checkpoint.save(self.out_dir / "checkpoint", self.slam.state_arrays(), self._meta())
 
     def _resume(self) -> None:
@@ -281,10 +298,12 @@ class Pipeline:
             if len(pairs) >= 2:
                 est, ref = zip(*pairs)
                 out["ate_mean_legacy_cm"] = 100.0 * float(M.ate_mean_legacy(np.array(est), np.array(ref)))
+        if self.streaming:
+            out.update(self.source.stats())   # received, dropped (never given to SLAM), rejected
         if self.device.type == "cuda":
             out["peak_gpu_memory_mb"] = torch.cuda.max_memory_allocated() / 2**20
-        if self.live is not None:
-            live = self.live
+        if self.live_engine is not None:
+            live = self.live_engine
             out["live"] = dict(max_lag=self.config.live.max_lag, mapper_steps=live.mapper_steps,
                                mapper_seconds=live.mapper_seconds, tracker_wait_seconds=live.wait_seconds,
                                gaussians_added=live.num_added, gaussians_pruned=live.num_pruned)
@@ -297,9 +316,9 @@ class Pipeline:
         from .io.ply import write_ply
         from .io.trajectory import write_tum_trajectory
 
-        if self.live is not None:
-            self.live.drain()
-            self.live.close()
+        if self.live_engine is not None:
+            self.live_engine.drain()
+            self.live_engine.close()
         # Time to the end of mapping counts: the live engine's last frames are mapped only now.
         if self.records and self._last_step is not None:
             self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step

@@ -69,7 +69,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
     def viewer():          # novel views of whatever version is newest, as the viewer thread does
         try:
             while not stop.is_set():
-                if live.live is None or live.slam.latest_version() is None:
+                if live.live_engine is None or live.slam.latest_version() is None:
                     continue
                 version = live.map_version()
                 seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))
@@ -104,7 +104,7 @@ def test_live_run_resumes_from_its_checkpoint(tmp_path):
     first = Pipeline(_source(8), config, tmp_path, engine="live")
     for _ in range(6):           # killed after frame 5: the checkpoint holds frames 0-3
         first.step()
-    first.live.close()
+    first.live_engine.close()
     resumed = _run(Pipeline(_source(8), config, tmp_path, engine="live", resume=True))
     resumed.finish()
     assert len(resumed.slam.w2cs) == 8 and resumed.ate_cm() < 1.0

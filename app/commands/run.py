@@ -5,13 +5,16 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from contextlib import nullcontext
 from pathlib import Path
 
+from app.commands.capture import add_idle_timeout, ctrl_c_ends
 from splat_core.errors import InputError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--input", required=True, help="capture folder or .r3d/.zip file ('synthetic' for the demo scene)")
+    p.add_argument("--input", required=True, help="capture folder or .r3d/.zip file ('synthetic' for the demo scene, "
+                   "nerfcapture:// for the NeRFCapture iPhone app's live stream, recorded to OUT/capture)")
     p.add_argument("--out", required=True, help="run folder to write")
     p.add_argument("--format", default=None, help="capture format (default: detected)")
     p.add_argument("--config", default=None, help="preset name(s) joined by '+' or a YAML file "
@@ -24,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "tracking runs ahead while a mapper thread maps (faster, not bitwise reproducible)")
     p.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_idle_timeout(p)
 
 
 def default_config_name(device) -> str:
@@ -31,10 +35,8 @@ def default_config_name(device) -> str:
 
 
 def main(args) -> int:
-    from tqdm import tqdm
-
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline, config_summary, open_input, resolve_device
+    from splat_core.pipeline import open_input, resolve_device
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():
@@ -43,12 +45,30 @@ def main(args) -> int:
         raise InputError(f"{out}: already holds a run; pass --resume to continue it or choose another --out")
     device = resolve_device(args.device)
     config = load_config(args.config or default_config_name(device))
-    source = open_input(None if args.input == "synthetic" else args.input, format=args.format)
+    live = args.input.startswith("nerfcapture://")
+    options = dict(capture_dir=out / "capture", idle_timeout=args.idle_timeout) if live else {}
+    source = open_input(None if args.input == "synthetic" else args.input, format=args.format, **options)
+    if live and not args.quiet:
+        from splat_core.io.nerfcapture_stream import waiting_message
+        print(waiting_message(), file=sys.stderr, flush=True)
+    try:
+        with ctrl_c_ends(source, "finishing this frame and writing the run") if live else nullcontext():
+            return _run(args, source, config, out)
+    finally:
+        source.close()
+
+
+def _run(args, source, config, out) -> int:
+    from tqdm import tqdm
+
+    from splat_core.pipeline import Pipeline, config_summary
+
     pipe = Pipeline(source, config, out, device=args.device, max_frames=args.max_frames,
                     stride=args.stride, resume=args.resume, engine=args.engine)
     if not args.quiet:
         print(f"{source.describe()}\nconfig {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
-              f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}", file=sys.stderr)
+              f"{pipe.total or 'live'} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}",
+              file=sys.stderr)
         for note in pipe.notes:
             print(f"note: {note}", file=sys.stderr)
     bar = tqdm(total=pipe.total, initial=len(pipe.records), unit="frame", disable=args.quiet,
@@ -58,11 +78,18 @@ def main(args) -> int:
         post = {"s/frame": f"{r.tracking_seconds + r.mapping_seconds:.2f}", "gaussians": r.num_gaussians}
         if ate is not None:
             post["ATE cm"] = f"{ate:.2f}"
+        if pipe.streaming:
+            post["dropped"] = source.dropped
         bar.set_postfix(post, refresh=False)
         bar.update(1)
     bar.close()
+    source.close()
+    if pipe.streaming and not args.quiet:
+        s = source.stats()
+        print(f"stream ended ({s['stream_end']}): {s['received']} frames received and recorded in {s['capture']}, "
+              f"{s['dropped']} not processed, {s['rejected']} rejected", file=sys.stderr)
     metrics = pipe.finish()
     summary = {k: metrics[k] for k in ("frames", "ate_rmse_cm", "psnr", "depth_l1_cm", "seconds_per_frame",
-                                       "num_gaussians") if k in metrics}
+                                       "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
     return 0

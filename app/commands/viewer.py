@@ -15,7 +15,8 @@ DEFAULT_PORT = 8080
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--input", default=None, help="capture folder or .r3d/.zip (default: the synthetic demo scene)")
+    p.add_argument("--input", default=None, help="capture folder or .r3d/.zip, or nerfcapture:// for the NeRFCapture "
+                   "iPhone app's live stream, recorded to OUT/capture (default: the synthetic demo scene)")
     p.add_argument("--format", default=None, help="capture format (default: detected)")
     p.add_argument("--config", default=None, help="preset name(s) joined by '+' or a YAML file "
                    "(default: cpu on a CPU, splatam on a GPU)")
@@ -73,7 +74,7 @@ def _stop_on_sigterm() -> None:
 def main(args) -> int:
     from app.viewer import StaticSource, build_viewer
 
-    worker = None
+    worker = stream = None
     if args.open:
         from app.browse import load_run
 
@@ -96,13 +97,19 @@ def main(args) -> int:
             raise InputError(f"{out}: already holds a run; choose another --out")
         device = resolve_device(args.device)
         config = load_config(args.config or default_config_name(device))
-        src = open_input(args.input, format=args.format)
+        live = bool(args.input and args.input.startswith("nerfcapture://"))
+        options = dict(capture_dir=out / "capture", idle_timeout=None) if live else {}  # until Ctrl-C / --max-frames
+        src = open_input(args.input, format=args.format, **options)
+        if live:
+            from splat_core.io.nerfcapture_stream import waiting_message
+            print(waiting_message(), file=sys.stderr, flush=True)
+            stream = src
         pipe = Pipeline(src, config, out, device=args.device, max_frames=args.max_frames, stride=args.stride,
                         engine=args.engine)
         worker = SlamWorker(pipe, start_paused=args.paused)
         source, export_dir = worker, out
         what = (f"{src.describe()}; config {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
-                f"{pipe.total} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}"
+                f"{pipe.total or 'live'} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}"
                 + "".join(f"; note: {n}" for n in pipe.notes))
 
     server = start_server(args.host, args.port)
@@ -125,6 +132,8 @@ def main(args) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        if stream is not None:
+            stream.close()              # a step waiting for a frame returns; the run folder is written
         if worker is not None and worker.is_alive():
             print("stopping SLAM after this frame and writing the run folder (Ctrl-C again to abort)…",
                   file=sys.stderr, flush=True)

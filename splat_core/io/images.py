@@ -116,13 +116,29 @@ def write_color_png(path: Path, color: np.ndarray) -> None:
         raise InputError(f"{path}: cannot write image")
 
 
-def write_depth_png(path: Path, depth_m: np.ndarray, units_per_metre: float) -> int:
-    """Metres -> 16-bit PNG. Depth beyond the 16-bit range becomes 0 (invalid); returns how many."""
-    cv2 = _cv2()
+def depth_to_units(depth_m: np.ndarray, units_per_metre: float) -> tuple[np.ndarray, int]:
+    """Metres -> uint16 units for a 16-bit PNG. NaN/inf/negative become 0 (invalid), and so does
+    depth beyond the 16-bit range; returns (units, how many were beyond the range)."""
     d = np.nan_to_num(np.asarray(depth_m, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
     raw = np.round(d * units_per_metre)
     over = raw > 65534  # 65535 is read back as "no reading"
     raw[over | (raw < 0)] = 0
-    if not cv2.imwrite(str(path), raw.astype(np.uint16)):
+    return raw.astype(np.uint16), int(over.sum())
+
+
+def write_depth_png(path: Path, depth_m: np.ndarray, units_per_metre: float) -> int:
+    """Metres -> 16-bit PNG. Depth beyond the 16-bit range becomes 0 (invalid); returns how many."""
+    raw, n_over = depth_to_units(depth_m, units_per_metre)
+    if not _cv2().imwrite(str(path), raw):
         raise InputError(f"{path}: cannot write depth image")
-    return int(over.sum())
+    return n_over
+
+
+def encode_png(image: np.ndarray, name: str) -> bytes:
+    """HxWx3 uint8 RGB or HxW uint16 -> PNG bytes (for writing with io.atomic)."""
+    cv2 = _cv2()
+    img = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR) if image.ndim == 3 else image
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise InputError(f"{name}: cannot encode PNG")
+    return buf.tobytes()

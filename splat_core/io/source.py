@@ -23,6 +23,7 @@ class FrameSource(ABC):
     format_name: str = "unknown"
     path: Path | None = None
     registered: bool = True     # colour and depth pixels correspond (False: the camera file says not)
+    live: bool = False          # frames arrive over time: pulled with next_frame(), len() grows (nerfcapture_stream.py)
 
     @abstractmethod
     def __len__(self) -> int: ...
@@ -51,6 +52,9 @@ class FrameSource(ABC):
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self[i]
+
+    def close(self) -> None:
+        """Release what the source holds (a live stream stops receiving); frames stay readable."""
 
     def describe(self) -> str:
         return f"{self.format_name} capture at {self.path} ({len(self)} frames)"

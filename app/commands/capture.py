@@ -1,0 +1,82 @@
+"""`splatam capture nerfcapture --out DIR [--frames N]`: record the NeRFCapture app's live stream
+as a capture folder in SplaTAM's layout, which `--input DIR` reads back.
+
+Ends after N frames, after --idle-timeout seconds without a frame, or on Ctrl-C; what arrived is
+kept either way (transforms.json is rewritten atomically after every frame).
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+from splat_core.errors import InputError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("source", choices=["nerfcapture"], help="the stream to record: the NeRFCapture iPhone app (DDS)")
+    p.add_argument("--out", required=True, help="capture folder to create (must be new or empty)")
+    p.add_argument("--frames", type=int, default=None, help="stop after N frames (default: Ctrl-C or idle)")
+    add_idle_timeout(p)
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+
+
+def add_idle_timeout(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
+                   help="nerfcapture://: end after S seconds without a frame (default 30; 0 = never)")
+
+
+@contextmanager
+def ctrl_c_ends(stream, what: str):
+    """The first Ctrl-C ends the stream (the command then finishes normally); a second one aborts."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGINT, previous)
+        print(f"\nCtrl-C: ending the stream, {what} (Ctrl-C again to abort)", file=sys.stderr, flush=True)
+        stream.stop()
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def main(args) -> int:
+    from tqdm import tqdm
+
+    from splat_core.io.nerfcapture_stream import NeRFCaptureStream, waiting_message
+
+    if args.frames is not None and args.frames < 1:
+        raise InputError(f"--frames {args.frames}: expected a positive number")
+    out = Path(args.out)
+    stream = NeRFCaptureStream(out, idle_timeout=args.idle_timeout, max_frames=args.frames)
+    if not args.quiet:
+        print(waiting_message(), file=sys.stderr, flush=True)
+    bar = tqdm(total=args.frames, unit="frame", desc=f"recording to {out}", disable=args.quiet,
+               dynamic_ncols=True, file=sys.stderr)
+    try:
+        with ctrl_c_ends(stream, "keeping the frames received so far"):
+            while not stream.wait_ended(0.25):
+                bar.update(len(stream) - bar.n)
+                if stream.rejected:
+                    bar.set_postfix(rejected=stream.rejected, refresh=False)
+    finally:
+        stream.close()
+        bar.update(len(stream) - bar.n)
+        bar.close()
+    if stream.error is not None:
+        raise InputError(f"{out}: recording stopped after {len(stream)} frames: {stream.error}")
+    if len(stream) == 0:
+        raise InputError(stream.no_frame_message())
+    note = f"; {stream.rejected} rejected, last: {stream.last_rejection}" if stream.rejected else ""
+    print(f"{len(stream)} frames recorded in {out} ({stream.end_reason}{note}); "
+          f"run SLAM on it with: splatam run --input {out} --out RUN_DIR")
+    return 0
