@@ -74,6 +74,7 @@ class MapSnapshot:
     ate_cm: float | None = None
     message: str = ""
     out_dir: Path | None = None
+    skipped_frames: tuple = ()             # (source index, reason) of bad frames the run skipped
 
     @property
     def num_gaussians(self) -> int:

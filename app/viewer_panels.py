@@ -37,6 +37,9 @@ def status_markdown(snap: MapSnapshot) -> str:
     lines = [f"Frame **{snap.processed} / {snap.total_frames}** · {snap.state}",
              f"{spf} · Gaussians **{snap.num_gaussians:,}**",
              f"ATE so far: {ate} · keyframes: {len(snap.keyframes)}"]
+    if snap.skipped_frames:
+        index, reason = snap.skipped_frames[-1]
+        lines.append(f"⚠ {len(snap.skipped_frames)} bad frame(s) skipped; last: {reason}")
     if snap.message:
         lines.append(snap.message)
     return "  \n".join(lines)

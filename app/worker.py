@@ -30,18 +30,23 @@ class SlamWorker(threading.Thread):
     map_interval_s: the Gaussian arrays are copied at most this often (and on every keyframe,
     pause and at the end); the other snapshot fields are refreshed after every frame.
     live_render: render the map at the tracked pose (colour, depth, silhouette) for the panel,
-    at most `live_max_width` pixels wide.
+    at most `live_max_width` pixels wide and at most every `live_interval_s` (the page shows
+    about two updates a second; a render per frame would only slow SLAM down). Between those
+    the panel keeps the last rendered frame, so image and render always belong together.
     """
 
     def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
                  render_backend: str = "auto", live_max_width: int = 320,
-                 map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0):
+                 map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0,
+                 live_interval_s: float = 0.4):
         super().__init__(name="slam-worker", daemon=True)
         self.pipeline = pipeline
         self.live_render = live_render
         self.render_backend = render_backend
         self.live_max_width = live_max_width
         self.map_interval_s = map_interval_s
+        self.live_interval_s = live_interval_s
+        self._live_rendered_at = -1e9
         self.frame_delay_s = frame_delay_s
         self.out_dir = out_dir if out_dir is not None else getattr(pipeline, "out_dir", None)
         self.metrics: dict | None = None
@@ -148,13 +153,22 @@ class SlamWorker(threading.Thread):
         pipe = self.pipeline
         self._last_frame_index = int(r.index)
         self._timestamps.append(float(r.timestamp))
-        live = self._render_live(r) if self.live_render else LiveView(
-            int(r.index), frozen(r.frame.color), frozen(r.frame.depth))
-        self._live = live
+        now = time.monotonic()
+        due = self._live is None or r.is_keyframe or now - self._live_rendered_at >= self.live_interval_s \
+            or r.index + 1 == pipe.total
+        if not self.live_render:
+            live = LiveView(int(r.index), frozen(r.frame.color), frozen(r.frame.depth))
+        elif due:
+            live = self._render_live(r)
+            self._live_rendered_at = now
+        else:
+            live = None
+        self._live = live or self._live
         seconds = float(pipe.records[-1]["wall_seconds"])
         ate = pipe.ate_cm()
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
-                           ("seconds", seconds), ("psnr", live.psnr), ("num_gaussians", r.num_gaussians)):
+                           ("seconds", seconds), ("psnr", live.psnr if live else None),
+                           ("num_gaussians", r.num_gaussians)):
             self._history[key].append(np.nan if value is None else float(value))
         self._publish(force_map=bool(r.is_keyframe))
 
@@ -226,5 +240,6 @@ class SlamWorker(threading.Thread):
                 seconds_per_frame=float(np.nanmean(secs[-10:])) if len(secs) else None,
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,
                 message=message, out_dir=self.out_dir,
+                skipped_frames=tuple((s["source_index"], s["reason"]) for s in pipe.skipped),
             )
             self._cond.notify_all()

@@ -4,6 +4,13 @@
     python benchmarks/slam.py --sequences synthetic --presets cpu --max-frames 20
     python benchmarks/slam.py --json --open3d                     # + Open3D baselines side by side
                                                                   #   (dense SLAM at 2 cm and 5.8 mm voxels)
+    python benchmarks/slam.py --engines sequential,live --presets cpu_dense,cpu   # both engines, one run
+    python benchmarks/slam.py --presets cpu_dense@sequential,cpu@live,cpu@sequential --open3d
+                                                                  # PRESET@ENGINE: that engine only
+
+s/frame is wall-clock time per frame (`wall_seconds` in metrics.json: from the end of one frame to
+the end of the next, so the live engine's waits for its mapper count, and the time its mapper
+needs after the last frame is added to that frame); the median skips frame 0.
 
 Each run is a separate `splatam run` process (so peak memory is per run) writing into
 --work (default: a temporary folder); figures come from its metrics.json.
@@ -38,9 +45,10 @@ def machine() -> str:
     return f"{model}, {os.cpu_count()} cores"
 
 
-def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str) -> dict:
+def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str,
+            engine: str = "sequential") -> dict:
     cmd = [sys.executable, "-m", "app.cli", "run", "--input", str(input_path), "--out", str(out),
-           "--config", preset, "--device", device, "--quiet"]
+           "--config", preset, "--device", device, "--engine", engine, "--quiet"]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
     if out.exists():
@@ -50,10 +58,10 @@ def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: 
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     m = json.loads((out / "metrics.json").read_text())
     keep = ("frames", "ate_rmse_cm", "ate_mean_legacy_cm", "psnr", "ssim", "depth_l1_cm",
-            "tracking_seconds_per_frame", "mapping_seconds_per_frame", "seconds_per_frame",
-            "num_gaussians", "peak_memory_mb", "peak_gpu_memory_mb", "resolution", "device")
+            "tracking_seconds_per_frame", "mapping_seconds_per_frame", "wall_seconds_per_frame",
+            "num_gaussians", "peak_memory_mb", "peak_gpu_memory_mb", "resolution", "device", "engine", "live")
     result = {k: m.get(k) for k in keep if k in m}
-    later = [f["tracking_seconds"] + f["mapping_seconds"] for f in m.get("per_frame", [])[1:]]
+    later = [f["wall_seconds"] for f in m.get("per_frame", [])[1:]]
     if later:   # frame 0 runs the long first mapping; the median of the rest is the steady cost
         result["seconds_per_frame_median"] = statistics.median(later)
     return result
@@ -63,6 +71,8 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sequences", default="synthetic," + ",".join(REAL))
     p.add_argument("--presets", default="cpu")
+    p.add_argument("--engines", default="sequential",
+                   help="comma-separated: sequential, live (for presets given without @ENGINE)")
     p.add_argument("--max-frames", type=int, default=None, help="limit every sequence (default: all)")
     p.add_argument("--device", default="auto")
     p.add_argument("--data", default=str(DATA), help="folder holding the real sequences (default: %(default)s)")
@@ -85,13 +95,16 @@ def main() -> None:
             if not path.is_dir():
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue
-        for preset in args.presets.split(","):
-            out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}"
-            row = {"sequence": seq, "preset": preset, **run_one(path, preset, out, args.max_frames, args.device),
-                   "machine": machine(), "run_dir": str(out)}
-            results.append(row)
-            if not args.json:
-                print(json.dumps(row), flush=True)
+        for entry in args.presets.split(","):
+            preset, _, engine_of_entry = entry.partition("@")
+            for engine in [engine_of_entry] if engine_of_entry else args.engines.split(","):
+                out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}__{engine}"
+                row = {"sequence": seq, "preset": preset, "engine": engine,
+                       **run_one(path, preset, out, args.max_frames, args.device, engine),
+                       "machine": machine(), "run_dir": str(out)}
+                results.append(row)
+                if not args.json:
+                    print(json.dumps(row), flush=True)
     real = [s for s in args.sequences.split(",") if s != "synthetic"]
     if args.open3d and real:
         cmd = [sys.executable, str(ROOT / "benchmarks" / "baseline_open3d.py"), "--sequences", ",".join(real),

@@ -1,6 +1,12 @@
 """Viewer costs: server-side map updates as the map grows, and time to first splats in a browser.
 
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
+    python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] --sizes '' --client-sizes ''
+
+--slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
+viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page), one
+after the other in this process; the median wall-clock s/frame of each (frame 0 left out) and
+their ratio (viewer fps / headless fps).
 
 Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
 map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on every chunk),
@@ -130,6 +136,60 @@ def client_side(n: int, timeout: float) -> dict:
         server.stop()
 
 
+def slam_rate(frames: int, engine: str, config: str, repeats: int = 1) -> dict:
+    """Median s/frame of SLAM headless and inside the viewer with a browser watching."""
+    import statistics
+
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.viewer import build_viewer
+    from app.worker import SlamWorker
+    from splat_core.config import load_config
+    from splat_core.pipeline import Pipeline, open_input
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from test_viewer_browser import ARGS  # noqa: E402
+
+    def pipeline():
+        return Pipeline(open_input(None), load_config(config), None, max_frames=frames, engine=engine)
+
+    def median(records):
+        return statistics.median(r["wall_seconds"] for r in records[1:])
+
+    headless, viewer = [], []
+    for _ in range(repeats):
+        pipe = pipeline()
+        while pipe.step() is not None:
+            pass
+        pipe.finish()
+        headless.append(median(pipe.records))
+
+        pipe = pipeline()
+        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        pw = sync_playwright().start()
+        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+        try:
+            page = browser.new_page(viewport={"width": 800, "height": 600})
+            worker = SlamWorker(pipe, start_paused=True)
+            app = build_viewer(server, worker)
+            page.goto(f"http://127.0.0.1:{server.get_port()}/")
+            page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+            worker.start()
+            worker.resume()
+            worker.join()
+            viewer.append(median(pipe.records))
+            app.close()
+        finally:
+            browser.close()
+            pw.stop()
+            server.stop()
+    h, v = statistics.median(headless), statistics.median(viewer)
+    return dict(frames=frames, engine=engine, config=config, headless_s_per_frame=round(h, 3),
+                viewer_s_per_frame=round(v, 3), viewer_fps_over_headless_fps=round(h / v, 3),
+                runs=dict(headless=headless, viewer=viewer))
+
+
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--json", action="store_true")
@@ -137,6 +197,10 @@ def main() -> int:
     p.add_argument("--client-sizes", default="10000,100000",
                    help="sizes timed in headless Chromium (software WebGL); '' to skip")
     p.add_argument("--client-timeout", type=float, default=180.0)
+    p.add_argument("--slam-frames", type=int, default=0, help="also compare SLAM's rate headless and in the viewer")
+    p.add_argument("--engine", default="live")
+    p.add_argument("--config", default="cpu")
+    p.add_argument("--repeats", type=int, default=1)
     args = p.parse_args()
     out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),
                server=[], client=[],
@@ -157,6 +221,10 @@ def main() -> int:
         if skipped:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
+    if args.slam_frames:
+        out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats)
+        if not args.json:
+            print(out["slam_rate"], flush=True)
     if args.json:
         print(json.dumps(out, indent=1))
     return 0

@@ -45,9 +45,11 @@ class TrackingConfig:
     align_color_weight: float = 1.0       # photometric term's weight against point-to-plane depth
     align_depth_noise: bool = False       # divide its depth residuals by a structured-light noise model sigma(z)
     align_stride: int = 1                 # that alignment uses every n-th live pixel (x and y) at full resolution
+    align_min_points: int = 4096          # ... but a smaller stride where that would leave fewer pixels
     pixels: str = "all"                   # pixels of the tracking loss: all | random | gradient | depth_edges (pixel_selection.py)
     pixel_tile: int = 8                   # ... chosen per pixel_tile x pixel_tile block
     pixels_per_tile: int = 1
+    min_pixels: int = 1024                # ... but smaller blocks where that would leave fewer pixels
 
 
 @dataclass

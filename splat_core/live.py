@@ -22,6 +22,12 @@ mapping is slower than tracking the mapper covers max_lag + 1 frames per step. W
 only coupling: the tracker never blocks on the mapper's work otherwise, and the mapper never
 waits for the tracker.
 
+Cores: under Numba's thread-safe "omp" layer the two threads run their kernels at the same time
+(parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
+stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measured on 2 cores,
+giving each thread half the cores (Numba's threads are per thread) or halving torch's threads
+was slower (README).
+
 Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
 sequential engine (SplaTAM.process) is the deterministic reference.
 """
@@ -31,6 +37,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+
 
 from .config import LiveConfig
 from .frame import Frame

@@ -15,6 +15,7 @@ import dataclasses
 import json
 import platform
 import resource
+import sys
 import time
 from pathlib import Path
 from typing import Protocol
@@ -62,6 +63,10 @@ def resolve_device(device: str) -> torch.device:
     return torch.device(device)
 
 
+# A capture whose first this many frames are all unusable is refused as a whole (exit 2).
+MAX_LEADING_BAD_FRAMES = 10
+
+
 def check_frame(frame: Frame, where: str) -> None:
     if frame.color.shape[:2] != frame.depth.shape:
         raise InputError(f"{where}: colour {frame.color.shape[:2]} and depth {frame.depth.shape} sizes differ")
@@ -83,12 +88,16 @@ class SlamRun(Protocol):
     config: Config
     intrinsics: Intrinsics      # working resolution
     records: list[dict]         # per processed frame: wall_seconds, tracking_loss, ...
+    skipped: list[dict]         # bad frames skipped: source_index, reason
 
     def step(self) -> FrameResult | None: ...
     def finish(self) -> dict: ...
     def map_version(self) -> MapVersion: ...
     def keyframes(self) -> list[Keyframe]: ...
     def estimated_c2w(self) -> list[np.ndarray]: ...
+    def has_reference(self) -> bool:
+        return any(is_finite_pose(r) for r in self.references)
+
     def reference_c2w(self) -> list[np.ndarray | None] | None: ...
     def ate_cm(self) -> float | None: ...
 
@@ -131,6 +140,9 @@ class Pipeline:
         self.slam.total_frames = self.total
         self.live_engine: LiveEngine | None = None     # the mapper thread of the live engine, once started
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
+        self.cursor = 0                        # next position in `indices` (frames read, skipped ones included)
+        self.skipped: list[dict] = []          # bad frames: source_index and the one-line reason
+        self.warn = lambda message: print(f"warning: {message}", file=sys.stderr, flush=True)
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
         self._last_step = None
@@ -152,32 +164,58 @@ class Pipeline:
         return version if version is not None else self.slam.publish(len(self.slam.w2cs) - 1)
 
     # ------------------------------------------------------------------ frames
-    def frame(self, k: int, raw: Frame | None = None) -> Frame:
-        """Processed frame k (or `raw`, frame k as read) at the working resolution, depth cut at max_depth."""
-        i = self.indices[k]
+    def frame(self, k: int) -> Frame:
+        """Processed frame k at the working resolution, depth cut at max_depth."""
+        return self.frame_at(int(self.records[k]["source_index"]))
+
+    def frame_at(self, i: int, raw: Frame | None = None) -> Frame:
+        """Capture frame i (or `raw`, that frame as received) at the working resolution, depth cut at
+        max_depth; InputError naming the file when it is unusable."""
         frame = self.source[i] if raw is None else raw
-        check_frame(frame, f"{getattr(self.source, 'path', 'input')} frame {i}")
+        name = self.source._name(i, "depth") if hasattr(self.source, "_name") else \
+            f"{getattr(self.source, 'path', 'input')} frame {i}"
+        check_frame(frame, name)
         frame = resize_frame(frame, self.intrinsics.width, self.intrinsics.height)
         if self.config.max_depth:
             frame.depth = np.where(frame.depth <= self.config.max_depth, frame.depth, 0).astype(np.float32)
         return frame
 
+    def _next_frame(self) -> Frame | None:
+        """The next usable frame; bad ones are skipped with a one-line warning (None at the end)."""
+        while self.total is None or self.cursor < self.total:
+            pulled = None
+            if self.streaming:
+                if (pulled := self.source.next_frame()) is None:   # the stream ended
+                    break
+                self.indices.append(pulled.index)
+            i = int(self.indices[self.cursor])
+            self.cursor += 1
+            try:
+                frame = self.frame_at(i, pulled)
+                if self.config.tracking.use_reference_poses and not (
+                        is_finite_pose(frame.c2w_ref) and (not self.references or is_finite_pose(self.references[0]))):
+                    raise InputError(f"{getattr(self.source, 'path', 'input')} frame {i}: no finite reference pose "
+                                     "(tracking.use_reference_poses)")
+                return frame
+            except InputError as e:
+                self.skipped.append(dict(source_index=i, reason=str(e)))
+                self.warn(f"skipped {e}")
+                if not self.records and len(self.skipped) >= MAX_LEADING_BAD_FRAMES:
+                    raise InputError(f"{getattr(self.source, 'path', 'input')}: the first {len(self.skipped)} "
+                                     f"frames are unusable (last: {e})") from None
+        if not self.records and self.skipped:
+            raise InputError(f"{getattr(self.source, 'path', 'input')}: no usable frame "
+                             f"({len(self.skipped)} skipped; last: {self.skipped[-1]['reason']})")
+        return None
+
     def step(self) -> FrameResult | None:
         k = len(self.records)
-        if self.total is not None and k >= self.total:
+        frame = self._next_frame()
+        if frame is None:
             return None
-        pulled = None
-        if self.streaming:
-            if (pulled := self.source.next_frame()) is None:   # the stream ended
-                return None
-            self.indices.append(pulled.index)
-        frame = self.frame(k, pulled)
         given = None
         if self.config.tracking.use_reference_poses:
-            ref = self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0])
-            if ref is None:
-                raise InputError(f"frame {frame.index}: tracking.use_reference_poses needs a reference pose")
-            given = invert_pose(ref)
+            given = invert_pose(self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0]))
         if self.engine == "live":
             result = self._live_engine().process(frame, given)
         else:
@@ -209,9 +247,12 @@ class Pipeline:
     def estimated_c2w(self) -> list[np.ndarray]:
         return [invert_pose(w) for w in self.slam.w2cs]
 
+    def has_reference(self) -> bool:
+        return any(is_finite_pose(r) for r in self.references)
+
     def reference_c2w(self) -> list[np.ndarray | None] | None:
         """Reference poses in the SLAM world (first frame's camera), or None without any."""
-        if not self.references or not any(is_finite_pose(r) for r in self.references):
+        if not self.has_reference():
             return None
         return [self._reference_world(r, self.references[0]) for r in self.references]
 
@@ -228,6 +269,7 @@ class Pipeline:
     # ------------------------------------------------------------------ checkpoints
     def _meta(self) -> dict:
         return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine,
+                    cursor=self.cursor, skipped=self.skipped,
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
@@ -252,6 +294,8 @@ class Pipeline:
             raise InputError(f"{self.out_dir}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
         self.slam.load_state_arrays(ckpt.arrays)
         self.records = list(ckpt.meta["records"])
+        self.cursor = int(ckpt.meta.get("cursor", len(self.records)))
+        self.skipped = list(ckpt.meta.get("skipped", []))
         self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
         self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
 
@@ -280,7 +324,9 @@ class Pipeline:
         mapping = [r["mapping_seconds"] for r in self.records]
         wall = [r["wall_seconds"] for r in self.records if "wall_seconds" in r]
         out = dict(
-            engine=self.engine, frames=len(self.records), num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
+            engine=self.engine, frames=len(self.records), frames_skipped=len(self.skipped),
+            skipped=self.skipped,
+            frames_without_reference=sum(not is_finite_pose(r) for r in self.references) if self.has_reference() else 0, num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
             ate_rmse_cm=self.ate_cm(),
             tracking_seconds_per_frame=float(np.mean(track)) if track else None,
             mapping_seconds_per_frame=float(np.mean(mapping)) if mapping else None,

@@ -166,6 +166,12 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
     return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid, start=start_name)
 
 
+def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:
+    """`step` (a block size or a stride), made smaller where one pixel per step x step block would
+    leave fewer than min_count pixels of the image (small working resolutions track densely)."""
+    return max(1, min(step, int(np.sqrt(intr.width * intr.height / max(min_count, 1)))))
+
+
 class Tracker:
     """align -> accept -> polish for one frame at a time (see the module docstring)."""
 
@@ -193,7 +199,7 @@ class Tracker:
                                    iterations=tc.align_iterations, passes=tc.align_passes,
                                    color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold,
                                    near=self.renderer.near, depth_noise=tc.align_depth_noise,
-                                   live_stride=tc.align_stride)
+                                   live_stride=sparse_step(tc.align_stride, self.intrinsics, tc.align_min_points))
             full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
                 else self.observe(color, depth, self.intrinsics)
             prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
@@ -227,7 +233,8 @@ class Tracker:
         """The frame at `intr`, reduced to the configured pixel subset."""
         tc = self.config
         c, d = resize_to(color, intr, False), resize_to(depth, intr, True)
-        pixels = choose_pixels(tc.pixels, c, d, tc.pixel_tile, tc.pixels_per_tile, self.rng)
+        pixels = choose_pixels(tc.pixels, c, d, sparse_step(tc.pixel_tile, intr, tc.min_pixels / tc.pixels_per_tile),
+                               tc.pixels_per_tile, self.rng)
         if pixels is not None:
             c, d = c[pixels[:, 1], pixels[:, 0]], d[pixels[:, 1], pixels[:, 0]]
         device, dtype = self.device, self.dtype

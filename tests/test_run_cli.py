@@ -56,8 +56,11 @@ def test_run_writes_a_complete_run_folder(capture, capsys):
     assert code == 2 and "--resume" in err
 
 
-def test_resume_equals_an_uninterrupted_run(capture):
-    cfg = load_config(str(capture / "tiny.yaml"))
+@pytest.mark.parametrize("pixels", ["all", "random"])
+def test_resume_equals_an_uninterrupted_run(capture, pixels):
+    # Sequential engine: bit for bit, sparse tracking's random pixel choice included (its state
+    # is in the checkpoint).
+    cfg = load_config(str(capture / "tiny.yaml"), overrides={"tracking": {"pixels": pixels, "pixel_tile": 4}})
     full = Pipeline(open_input(capture / "cap"), cfg, capture / "full")
     while full.step() is not None:
         pass
@@ -98,9 +101,9 @@ def test_bad_input_is_one_line_and_exit_2(capture, capsys, case):
         cap = capture / "junk"
         cap.mkdir()
         (cap / "notes.txt").write_text("hello")
-    elif case == "bad_image":
-        first = sorted((cap / "rgb").iterdir())[0]
-        first.write_bytes(b"not an image")
+    elif case == "bad_image":                     # every image: one bad frame alone is skipped
+        for image in sorted((cap / "rgb").iterdir()):
+            image.write_bytes(b"not an image")
     elif case == "bad_intrinsics":
         text = (cap / "camera.yaml").read_text()
         lines = [("fx: -1.0" if line.strip().startswith("fx") else line) for line in text.splitlines()]
@@ -116,6 +119,40 @@ def test_bad_input_is_one_line_and_exit_2(capture, capsys, case):
     assert len(lines) == 1 and lines[0].startswith("error: "), err
     assert "Traceback" not in err
     assert not (out / "map.ply").exists() and not (out / "metrics.json").exists()
+
+
+def test_bad_frames_are_skipped_with_a_warning_and_the_run_goes_on(capture, capsys):
+    import cv2
+    cap = capture / "cap"
+    depths, images = sorted((cap / "depth").iterdir()), sorted((cap / "rgb").iterdir())
+    for k in (3, 5):                              # a LiDAR dropout, a hand over the sensor
+        cv2.imwrite(str(depths[k]), np.zeros_like(cv2.imread(str(depths[k]), cv2.IMREAD_UNCHANGED)))
+    images[6].write_bytes(b"truncated")
+    out = capture / "run"
+    code, err = run_cli(["run", "--input", str(cap), "--out", str(out), "--config", str(capture / "tiny.yaml"),
+                         "--quiet"], capsys)
+    assert code == 0, err
+    warnings = [line for line in err.splitlines() if line.startswith("warning: skipped")]
+    assert len(warnings) == 3 and "Traceback" not in err
+    assert depths[3].name in warnings[0] and depths[5].name in warnings[1] and images[6].name in warnings[2]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 5 and metrics["frames_skipped"] == 3
+    assert [s["source_index"] for s in metrics["skipped"]] == [3, 5, 6]
+    stamps, _ = read_tum_trajectory(out / "trajectory.txt")
+    assert len(stamps) == 5
+
+
+def test_a_capture_whose_first_frames_are_all_bad_is_refused(capture, capsys):
+    import cv2
+    fixtures.write_tum(capture / "long", n=12)
+    for depth in sorted((capture / "long" / "depth").iterdir())[:10]:
+        cv2.imwrite(str(depth), np.zeros_like(cv2.imread(str(depth), cv2.IMREAD_UNCHANGED)))
+    out = capture / "out"
+    code, err = run_cli(["run", "--input", str(capture / "long"), "--out", str(out),
+                         "--config", str(capture / "tiny.yaml"), "--quiet"], capsys)
+    lines = [line for line in err.splitlines() if line.startswith("error: ")]
+    assert code == 2 and len(lines) == 1 and "first 10 frames are unusable" in lines[0], err
+    assert not (out / "map.ply").exists()
 
 
 @pytest.mark.parametrize("writer,name", [("write_replica", "rep"), ("write_scannet", "sn"),

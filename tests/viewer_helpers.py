@@ -43,6 +43,7 @@ class FakePipeline:
         self.map = GaussianMap.empty()
         self.kf: list[Keyframe] = []
         self.records: list[dict] = []
+        self.skipped: list[dict] = []
         self.versions = 0
         self.w2cs: list[np.ndarray] = []
         self.finished = False

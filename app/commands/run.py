@@ -71,17 +71,20 @@ def _run(args, source, config, out) -> int:
               file=sys.stderr)
         for note in pipe.notes:
             print(f"note: {note}", file=sys.stderr)
-    bar = tqdm(total=pipe.total, initial=len(pipe.records), unit="frame", disable=args.quiet,
+    bar = tqdm(total=pipe.total, initial=pipe.cursor, unit="frame", disable=args.quiet,
                dynamic_ncols=True, file=sys.stderr)
+    pipe.warn = lambda message: bar.write(f"warning: {message}", file=sys.stderr)   # above the bar
     while (r := pipe.step()) is not None:
         ate = pipe.ate_cm() if r.index % 5 == 0 or r.index + 1 == pipe.total else None
-        post = {"s/frame": f"{r.tracking_seconds + r.mapping_seconds:.2f}", "gaussians": r.num_gaussians}
+        post = {"s/frame": f"{pipe.records[-1]['wall_seconds']:.2f}", "gaussians": r.num_gaussians}
         if ate is not None:
             post["ATE cm"] = f"{ate:.2f}"
         if pipe.streaming:
             post["dropped"] = source.dropped
+        if pipe.skipped:
+            post["skipped"] = len(pipe.skipped)
         bar.set_postfix(post, refresh=False)
-        bar.update(1)
+        bar.update(pipe.cursor - bar.n)
     bar.close()
     source.close()
     if pipe.streaming and not args.quiet:
@@ -89,7 +92,7 @@ def _run(args, source, config, out) -> int:
         print(f"stream ended ({s['stream_end']}): {s['received']} frames received and recorded in {s['capture']}, "
               f"{s['dropped']} not processed, {s['rejected']} rejected", file=sys.stderr)
     metrics = pipe.finish()
-    summary = {k: metrics[k] for k in ("frames", "ate_rmse_cm", "psnr", "depth_l1_cm", "seconds_per_frame",
-                                       "num_gaussians", "received", "dropped") if k in metrics}
+    summary = {k: metrics[k] for k in ("frames", "frames_skipped", "ate_rmse_cm", "psnr", "depth_l1_cm",
+                                       "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
     return 0

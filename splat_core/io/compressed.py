@@ -14,7 +14,7 @@ synthetic map that left chunks metres tall and errors of 1.4 mm, the k-d order 0
 SPZ's gzip gains from neighbours sharing their high position bytes. Readers return file order.
 
 gsply writes the coordinates it is given (no axis conversion of its own). Its kernels use
-Numba's parallel runtime, so every call holds splat_core.parallel.NUMBA_LOCK.
+Numba's parallel runtime, so every call runs inside splat_core.parallel.numba_lock().
 
 Precision. SPZ: positions 24-bit fixed point with 10 fractional bits (1/1024 m steps: at most
 0.49 mm off per coordinate, 0.85 mm in 3D; |coordinate| < 8192 m). Niantic's default is 12, but
@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from ..parallel import NUMBA_LOCK
+from ..parallel import numba_lock
 from .atomic import atomic_path, write_bytes_atomic
 from .ply import SH_C0, checked_arrays, collapse_isotropic, normalised_quaternions
 
@@ -106,7 +106,7 @@ def write_spz(path, arrays: dict) -> Path:
         raise InputError(f"{path}: the map reaches {np.abs(means).max():.0f} m from the origin; SPZ "
                          f"({SPZ_FRACTIONAL_BITS} fractional bits) holds |x| < {SPZ_MAX_COORDINATE:.0f} m")
     data = _gsdata(arrays, RDF_TO_RUB)
-    with atomic_path(path) as tmp, NUMBA_LOCK:
+    with atomic_path(path) as tmp, numba_lock():
         gsply.write_spz(tmp, data, version=3, fractional_bits=SPZ_FRACTIONAL_BITS)
     return Path(path)
 
@@ -119,7 +119,7 @@ def read_spz(path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise InputError(f"{path}: no such SPZ file")
     try:
-        with NUMBA_LOCK:
+        with numba_lock():
             data = gsply.read_spz(path)
     except ValueError as e:
         raise InputError(f"{path}: not a readable SPZ file ({str(e).removesuffix(f': {path}')})") from None
@@ -132,7 +132,7 @@ def compressed_ply_bytes(arrays: dict) -> bytes:
     import gsply
 
     data = _gsdata(arrays)
-    with NUMBA_LOCK:
+    with numba_lock():
         return gsply.compress_to_bytes(data)
 
 
@@ -155,7 +155,7 @@ def read_compressed_ply(path) -> dict[str, np.ndarray]:
     path = Path(path)
     raw = path.read_bytes()
     try:
-        with NUMBA_LOCK:
+        with numba_lock():
             data = gsply.decompress_from_bytes(raw)
     except (ValueError, KeyError, IndexError) as e:
         raise InputError(f"{path}: not a readable compressed PLY ({e})") from None

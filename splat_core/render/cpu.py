@@ -29,8 +29,9 @@ How it is fast (measurements in ../shared/reference/cpu_rasterizer_notes.md):
 - Features are composited 4 channels at a time (RGB + depth in practice); other channel counts
   are zero-padded and split into blocks of 4.
 
-Numba's parallel runtime must not be entered from two threads at once, so every kernel call
-holds `_KERNEL_LOCK` (the SLAM worker and the viewer both render).
+Numba's "workqueue" threading layer must not be entered from two threads at once, so every
+kernel call runs inside `splat_core.parallel.numba_lock()` (a lock unless the layer in use is
+thread-safe; the tracker, the mapper, the SLAM worker and the viewer all render).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
-from ..parallel import NUMBA_LOCK
+from ..parallel import numba_lock
 from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 TILE = 16
@@ -56,7 +57,6 @@ LANES = 8        # a tile row is processed as TILE // LANES vectorised groups of
 # identically in forward and backward).
 SPAN_SLACK = 0.01
 
-_KERNEL_LOCK = NUMBA_LOCK   # shared with other Numba-parallel code (splat_core/parallel.py)
 
 # Layout of the `consts` array handed to the kernels (in the working dtype).
 (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_T_MIN, _C_HALF, _C_ONE, _C_ZERO, _C_TWO, _C_255, _C_SLACK, _C_WIDTH,
@@ -631,7 +631,7 @@ class _TileChunks:
     """Dynamic scheduling for the tile kernels: chunks of one tile (tiles are very uneven).
 
     Set from Python (a `with numba.parallel_chunksize` block inside a cached kernel breaks
-    Numba's cache); only used while `_KERNEL_LOCK` is held, so the setting is not shared.
+    Numba's cache); the setting is thread-local in Numba, so concurrent callers do not share it.
     """
 
     def __enter__(self):
@@ -648,7 +648,7 @@ def _working_dtype(t: torch.Tensor):
 
 def count_intersections(means2d, conics, opacities, radii, width: int, height: int) -> int:
     """Number of (tile, Gaussian) pairs the CPU rasterizer processes for these inputs."""
-    with _KERNEL_LOCK:
+    with numba_lock():
         b = _bin(means2d, conics, opacities, None, torch.zeros(means2d.shape[0]), radii,
                  width, height, _working_dtype(means2d), {})
     return int(b.gauss_offsets[-1])
@@ -657,7 +657,7 @@ def count_intersections(means2d, conics, opacities, radii, width: int, height: i
 def _forward(means2d, conics, opacities, features, depths, radii, width, height):
     dtype = _working_dtype(means2d)
     stats = {}
-    with _KERNEL_LOCK:
+    with numba_lock():
         b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats)
         H, W = b.height, b.width
         t0 = time.perf_counter()
@@ -690,7 +690,7 @@ def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
     g_o = np.zeros(b.n, dtype=dtype)
     g_f = np.zeros((b.n, 4 * len(b.blocks)), dtype=dtype)
     t_kernel = t_reduce = 0.0
-    with _KERNEL_LOCK:
+    with numba_lock():
         for i, block in enumerate(b.blocks):
             t0 = time.perf_counter()
             gi = np.zeros((H, W, 4), dtype=dtype)

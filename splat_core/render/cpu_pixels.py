@@ -24,13 +24,14 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO, _KERNEL_LOCK, _P_A, _P_B,
+from ..parallel import numba_lock
+from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO, _P_A, _P_B,
                   _P_C, _P_MX, _P_MY, _P_O, TILE, _bin, _exp, _np, _working_dtype)
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _pixels_forward(params, features, boxes, tile_offsets, isect_gauss, consts, ntx, px, py,
-                    out, alpha, t_final, last):
+                    out, alpha, t_final, last, contributions):
     amax, amin, tmin = consts[_C_ALPHA_MAX], consts[_C_ALPHA_MIN], consts[_C_T_MIN]
     half, one, zero = consts[_C_HALF], consts[_C_ONE], consts[_C_ZERO]
     C = features.shape[1]
@@ -43,6 +44,7 @@ def _pixels_forward(params, features, boxes, tile_offsets, isect_gauss, consts, 
         for c in range(C):
             out[p, c] = zero
         lastk = 0
+        n = 0
         start = tile_offsets[t]
         for k in range(start, tile_offsets[t + 1]):
             j = isect_gauss[k]
@@ -65,15 +67,18 @@ def _pixels_forward(params, features, boxes, tile_offsets, isect_gauss, consts, 
             acc_alpha += w
             T = tn
             lastk = k - start + 1
+            n += 1
         alpha[p] = acc_alpha
         t_final[p] = T
         last[p] = lastk
+        contributions[p] = n
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _pixels_backward(params, features, boxes, tile_offsets, isect_gauss, consts, ntx, px, py,
                      t_final, last, row_offsets, grad_out, grad_alpha, rows, row_gauss):
-    """rows[r] = (d means2d (2), d conic (3), d opacity, d features (C)) of one (pixel, position)."""
+    """rows[r] = (d means2d (2), d conic (3), d opacity, d features (C)) of one (pixel, contributing
+    Gaussian); a pixel's rows start at row_offsets[p]."""
     amax, amin = consts[_C_ALPHA_MAX], consts[_C_ALPHA_MIN]
     half, one, zero = consts[_C_HALF], consts[_C_ONE], consts[_C_ZERO]
     C = features.shape[1]
@@ -87,11 +92,7 @@ def _pixels_backward(params, features, boxes, tile_offsets, isect_gauss, consts,
         S = np.zeros(C, dtype=params.dtype)
         r = row_offsets[p + 1]
         for k in range(start + last[p] - 1, start - 1, -1):
-            r -= 1
             j = isect_gauss[k]
-            row_gauss[r] = j
-            for q in range(rows.shape[1]):
-                rows[r, q] = zero
             if x < boxes[j, 0] or x > boxes[j, 1] or y < boxes[j, 2] or y > boxes[j, 3]:
                 continue
             A, B, Cc, o = params[j, _P_A], params[j, _P_B], params[j, _P_C], params[j, _P_O]
@@ -106,6 +107,10 @@ def _pixels_backward(params, features, boxes, tile_offsets, isect_gauss, consts,
             a = amax if clamped else a0
             if a < amin:
                 continue
+            r -= 1
+            row_gauss[r] = j
+            for q in range(rows.shape[1]):
+                rows[r, q] = zero
             inv = one / (one - a)
             T = T * inv                      # transmittance in front of this Gaussian
             w = a * T
@@ -144,35 +149,36 @@ class _RasterizePixelsCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, px, py):
         dtype = _working_dtype(means2d)
-        with _KERNEL_LOCK:
-            b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, {})
+        with numba_lock():
+            b = _bin(means2d, conics, opacities, None, depths, radii, width, height, dtype, {})
             feats = np.ascontiguousarray(_np(features, dtype)[b.order])
             P, C = px.shape[0], feats.shape[1]
             out = np.empty((P, C), dtype=dtype)
             alpha = np.empty(P, dtype=dtype)
             t_final = np.empty(P, dtype=dtype)
             last = np.empty(P, dtype=np.int64)
+            contributions = np.empty(P, dtype=np.int64)
             _pixels_forward(b.params, feats, b.boxes, b.tile_offsets, b.isect_gauss, b.consts, b.ntx,
-                            px, py, out, alpha, t_final, last)
-        ctx.saved = (b, feats, px, py, t_final, last)
+                            px, py, out, alpha, t_final, last, contributions)
+        ctx.saved = (b, feats, px, py, t_final, last, contributions)
         ctx.like = (means2d.dtype, means2d.device)
         dt, device = ctx.like
         return torch.from_numpy(out).to(device, dt), torch.from_numpy(alpha).to(device, dt)
 
     @staticmethod
     def backward(ctx, grad_out, grad_alpha):
-        b, feats, px, py, t_final, last = ctx.saved
+        b, feats, px, py, t_final, last, contributions = ctx.saved
         dtype, device = ctx.like
         wd = b.params.dtype
         P, C = px.shape[0], feats.shape[1]
         go = np.zeros((P, C), dtype=wd) if grad_out is None else _np(grad_out, wd)
         ga = np.zeros(P, dtype=wd) if grad_alpha is None else _np(grad_alpha, wd)
         row_offsets = np.zeros(P + 1, dtype=np.int64)
-        np.cumsum(last, out=row_offsets[1:])
+        np.cumsum(contributions, out=row_offsets[1:])
         rows = np.empty((int(row_offsets[-1]), 6 + C), dtype=wd)
         row_gauss = np.empty(int(row_offsets[-1]), dtype=np.int64)
         grads = np.zeros((b.n, 6 + C), dtype=wd)
-        with _KERNEL_LOCK:
+        with numba_lock():
             _pixels_backward(b.params, feats, b.boxes, b.tile_offsets, b.isect_gauss, b.consts, b.ntx,
                              px, py, t_final, last, row_offsets, go, ga, rows, row_gauss)
             _add_rows(b.order, rows, row_gauss, grads)
