@@ -181,7 +181,11 @@ class Pipeline:
         return frame
 
     def _next_frame(self) -> Frame | None:
-        """The next usable frame; bad ones are skipped with a one-line warning (None at the end)."""
+        """The next usable frame; bad ones are skipped with a one-line warning (None at the end).
+
+        Before the first usable frame the warnings wait: a capture refused as a whole gets its one
+        error line and no list of warnings."""
+        held = []
         while self.total is None or self.cursor < self.total:
             pulled = None
             if self.streaming:
@@ -196,10 +200,15 @@ class Pipeline:
                         is_finite_pose(frame.c2w_ref) and (not self.references or is_finite_pose(self.references[0]))):
                     raise InputError(f"{getattr(self.source, 'path', 'input')} frame {i}: no finite reference pose "
                                      "(tracking.use_reference_poses)")
+                for message in held:
+                    self.warn(message)
                 return frame
             except InputError as e:
                 self.skipped.append(dict(source_index=i, reason=str(e)))
-                self.warn(f"skipped {e}")
+                if self.records:
+                    self.warn(f"skipped {e}")
+                else:
+                    held.append(f"skipped {e}")
                 if not self.records and len(self.skipped) >= MAX_LEADING_BAD_FRAMES:
                     raise InputError(f"{getattr(self.source, 'path', 'input')}: the first {len(self.skipped)} "
                                      f"frames are unusable (last: {e})") from None

@@ -67,41 +67,41 @@ def test_intrinsics_scaling_keeps_pixel_centres():
 
 # ----------------------------------------------------------------------------- tracking
 
-def test_tracking_recovers_a_perturbed_pose():
-    # The map comes from frame 0 after mapping (an unoptimised map of 1-px Gaussians renders depth
-    # biased towards the camera; mapping removes most of it), frame 1 is tracked from a pose 1.4 cm off.
+def _perturbed_tracking_case():
+    """(map, frame 1, true w2c, a start 1.4 cm off). The map comes from frame 0 after mapping (an
+    unoptimised map of 1-px Gaussians renders depth biased towards the camera; mapping removes most
+    of it)."""
     src = small_source(n=2, w=160, h=120)
     f0, f1 = src[0], src[1]
     m = map_from_frame(f0)
     view = View(torch.as_tensor(f0.color), torch.as_tensor(f0.depth), np.eye(4))
     optimise_map(m, [view], f0.intrinsics, MappingConfig(), 150, 2.0, np.random.default_rng(0))
     truth = rel_w2c(src, 1)
-    start = pose_matrix(np.eye(3), (0.01, -0.005, 0.008)) @ truth
+    return m, f1, truth, pose_matrix(np.eye(3), (0.01, -0.005, 0.008)) @ truth
+
+
+def _centre_error(w2c, truth) -> float:
+    return float(np.linalg.norm(invert_pose(w2c)[:3, 3] - invert_pose(truth)[:3, 3]))
+
+
+def test_tracking_recovers_a_perturbed_pose():
+    m, f1, truth, start = _perturbed_tracking_case()
     obs = Observation(f1.intrinsics, torch.as_tensor(f1.color), torch.as_tensor(f1.depth))
     out = polish(Renderer(), m.tensors(detach=True), obs, start, TrackingConfig(iterations=60))
-    centre = lambda w2c: invert_pose(w2c)[:3, 3]  # noqa: E731
-    err0 = np.linalg.norm(centre(start) - centre(truth))
-    err = np.linalg.norm(centre(out.w2c) - centre(truth))
-    assert err < 0.008 and err < err0 / 2
+    err = _centre_error(out.w2c, truth)
+    assert err < 0.008 and err < _centre_error(start, truth) / 2
     assert out.iterations == 60 and out.valid_pixels > 0
 
 
 @pytest.mark.parametrize("rule", ["random", "gradient"])
 def test_sparse_tracking_recovers_a_perturbed_pose_like_dense_tracking(rule):
     # The previous test's setting, tracked on one pixel per 4 x 4 block through the sparse renderer.
-    src = small_source(n=2, w=160, h=120)
-    f0, f1 = src[0], src[1]
-    m = map_from_frame(f0)
-    view = View(torch.as_tensor(f0.color), torch.as_tensor(f0.depth), np.eye(4))
-    optimise_map(m, [view], f0.intrinsics, MappingConfig(), 150, 2.0, np.random.default_rng(0))
-    truth = rel_w2c(src, 1)
-    start = pose_matrix(np.eye(3), (0.01, -0.005, 0.008)) @ truth
-    centre = lambda w2c: invert_pose(w2c)[:3, 3]  # noqa: E731
+    m, f1, truth, start = _perturbed_tracking_case()
     errors = {}
     for pixels in ("all", rule):
-        tracker = Tracker(TrackingConfig(iterations=60, pixels=pixels, pixel_tile=4), f1.intrinsics, Renderer())
-        out = tracker.track(m.tensors(detach=True), f1.color, f1.depth, start)
-        errors[pixels] = np.linalg.norm(centre(out.w2c) - centre(truth))
+        config = TrackingConfig(iterations=60, pixels=pixels, pixel_tile=4, min_pixels=1)
+        out = Tracker(config, f1.intrinsics, Renderer()).track(m.tensors(detach=True), f1.color, f1.depth, start)
+        errors[pixels] = _centre_error(out.w2c, truth)
         assert out.iterations == 60 and out.valid_pixels > 0
     assert errors[rule] < 0.008 and errors[rule] < 1.5 * errors["all"] + 0.001, errors
 
