@@ -48,6 +48,12 @@ class Intrinsics:
             int(width), int(height),
         )
 
+    def fraction(self, s: float) -> "Intrinsics":
+        """The same camera at s times the resolution (at least one pixel); itself when s == 1."""
+        if s == 1:
+            return self
+        return self.scaled(max(1, round(self.width * s)), max(1, round(self.height * s)))
+
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)

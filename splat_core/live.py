@@ -38,7 +38,6 @@ import threading
 import time
 from collections import deque
 
-
 from .config import LiveConfig
 from .frame import Frame
 from .keyframes import is_keyframe_time
@@ -58,8 +57,7 @@ class LiveEngine:
         self.mapper_seconds = 0.0
         self.wait_seconds = 0.0
         self.num_added = self.num_pruned = 0
-        if self._mapped >= 0:
-            slam.publish(self._mapped)
+        slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
         self._thread.start()
 
@@ -69,8 +67,7 @@ class LiveEngine:
         waited = self._wait_for_map(t)
         start = time.perf_counter()
         version = self.slam.latest_version()
-        gaussians = version.gaussians if version is not None else self.slam.map.tensors(detach=True)
-        t, w2c, tracked = self.slam.track(frame, gaussians, w2c_given)
+        t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
         tracking_seconds = time.perf_counter() - start
         with self._cond:
             self._pending.append((t, frame, w2c))
@@ -79,11 +76,11 @@ class LiveEngine:
         return FrameResult(
             index=t, timestamp=frame.timestamp, w2c=w2c,
             is_keyframe=is_keyframe_time(t, self.slam.total_frames, self.slam.config.keyframes.every),
-            num_gaussians=len(version) if version is not None else 0, num_added=0, num_pruned=0,
+            num_gaussians=len(version), num_added=0, num_pruned=0,
             tracking_seconds=tracking_seconds, mapping_seconds=waited,
             tracking_loss=tracked.loss if tracked else None,
             tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index,
-            map_version=version.number if version is not None else 0)
+            map_version=version.number)
 
     def _wait_for_map(self, t: int) -> float:
         """Block while the map is too far behind frame t (the policy above); returns seconds waited."""

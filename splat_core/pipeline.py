@@ -32,7 +32,6 @@ from .frame import Frame, resize_frame
 from .io import checkpoint
 from .io.atomic import write_text_atomic
 from .io.source import FrameSource
-
 from .keyframes import Keyframe
 from .live import LiveEngine
 from .slam import FrameResult, MapVersion, SplaTAM
@@ -95,9 +94,6 @@ class SlamRun(Protocol):
     def map_version(self) -> MapVersion: ...
     def keyframes(self) -> list[Keyframe]: ...
     def estimated_c2w(self) -> list[np.ndarray]: ...
-    def has_reference(self) -> bool:
-        return any(is_finite_pose(r) for r in self.references)
-
     def reference_c2w(self) -> list[np.ndarray | None] | None: ...
     def ate_cm(self) -> float | None: ...
 
@@ -159,9 +155,11 @@ class Pipeline:
 
     def map_version(self) -> MapVersion:
         """The newest map that may be read from any thread (live: the mapper's latest version;
-        sequential: a copy of the map made now, by the stepping thread)."""
-        version = self.slam.latest_version() if self.live_engine is not None else None
-        return version if version is not None else self.slam.publish(len(self.slam.w2cs) - 1)
+        sequential: a copy of the map after the last frame, made once by the stepping thread)."""
+        version = self.slam.latest_version()
+        if self.live_engine is None and (version is None or version.frame_index != len(self.slam.w2cs) - 1):
+            version = self.slam.publish(len(self.slam.w2cs) - 1)
+        return version
 
     # ------------------------------------------------------------------ frames
     def frame(self, k: int) -> Frame:
@@ -230,9 +228,9 @@ class Pipeline:
         else:
             result = self.slam.process(frame, given)
         result.frame = frame
-        now = time.perf_counter()
-        wall = now - (self._last_step if self._last_step is not None else now - result.tracking_seconds
-                      - result.mapping_seconds)
+        now = time.perf_counter()   # wall time since the last frame (the first: its own processing)
+        wall = now - self._last_step if self._last_step is not None else \
+            result.tracking_seconds + result.mapping_seconds
         self._last_step = now
         self.references.append(frame.c2w_ref)
         self.records.append(dict(
@@ -331,11 +329,12 @@ class Pipeline:
     def metrics(self) -> dict:
         track = [r["tracking_seconds"] for r in self.records]
         mapping = [r["mapping_seconds"] for r in self.records]
-        wall = [r["wall_seconds"] for r in self.records if "wall_seconds" in r]
+        wall = [r["wall_seconds"] for r in self.records]
         out = dict(
             engine=self.engine, frames=len(self.records), frames_skipped=len(self.skipped),
             skipped=self.skipped,
-            frames_without_reference=sum(not is_finite_pose(r) for r in self.references) if self.has_reference() else 0, num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
+            frames_without_reference=sum(not is_finite_pose(r) for r in self.references) if self.has_reference() else 0,
+            num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
             ate_rmse_cm=self.ate_cm(),
             tracking_seconds_per_frame=float(np.mean(track)) if track else None,
             mapping_seconds_per_frame=float(np.mean(mapping)) if mapping else None,

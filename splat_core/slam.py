@@ -89,7 +89,7 @@ class SplaTAM:
         self.intrinsics = intrinsics
         self.device, self.dtype = torch.device(device), dtype
         self.renderer = Renderer(near=config.near_plane)
-        self.densify_intrinsics = self._scaled(config.densify.resolution_scale)
+        self.densify_intrinsics = intrinsics.fraction(config.densify.resolution_scale)
         self.tracker = Tracker(config.tracking, intrinsics, self.renderer, seed=config.seed, device=self.device, dtype=dtype)
         self.map = GaussianMap.empty(config.isotropic, device=self.device, dtype=dtype)
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
@@ -100,10 +100,6 @@ class SplaTAM:
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
-
-    def _scaled(self, s: float) -> Intrinsics:
-        i = self.intrinsics
-        return i if s == 1 else i.scaled(max(1, round(i.width * s)), max(1, round(i.height * s)))
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)

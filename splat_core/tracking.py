@@ -180,10 +180,8 @@ class Tracker:
         self.config, self.intrinsics, self.renderer = config, intrinsics, renderer
         self.device, self.dtype = torch.device(device), dtype
         self.rng = np.random.default_rng([seed, 1])    # pixel choice; its own stream (resume)
-        scale = lambda s: intrinsics if s == 1 else intrinsics.scaled(  # noqa: E731
-            max(1, round(intrinsics.width * s)), max(1, round(intrinsics.height * s)))
         tc = config
-        self.stages = [(scale(s), dataclasses.replace(tc, iterations=n)) for s, n in
+        self.stages = [(intrinsics.fraction(s), dataclasses.replace(tc, iterations=n)) for s, n in
                        ((tc.coarse_scale, tc.coarse_iterations), (tc.resolution_scale, tc.iterations)) if n > 0]
 
     # -------------------------------------------------------------- one frame
