@@ -84,6 +84,7 @@ class KeyframeConfig:
     selection: str = "overlap"            # "overlap" (paper: top-k) or "random" (original code)
     overlap_samples: int = 1600
     overlap_border: int = 20
+    memory_mb: float = 512.0              # keyframe images kept in host memory; older ones are read from a file (keyframes.py)
 
 
 @dataclass
@@ -126,6 +127,7 @@ class Config:
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
+            (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),
             (self.keyframes.selection in ("overlap", "random"), "keyframes.selection must be overlap or random"),
             (0 < self.tracking.resolution_scale <= 1, "tracking.resolution_scale must be in (0, 1]"),
             (0 < self.densify.resolution_scale <= 1, "densify.resolution_scale must be in (0, 1]"),

@@ -32,8 +32,9 @@ from .frame import Frame, resize_frame
 from .io import checkpoint
 from .io.atomic import write_text_atomic
 from .io.source import FrameSource
-from .keyframes import Keyframe
+from .keyframes import KEYFRAME_FILE, Keyframe
 from .live import LiveEngine
+from .memory import release_free_memory
 from .slam import FrameResult, MapVersion, SplaTAM
 
 ENGINES = ("sequential", "live")
@@ -61,6 +62,8 @@ def resolve_device(device: str) -> torch.device:
         raise InputError(f"--device {device}: expected auto, cpu or cuda")
     return torch.device(device)
 
+
+RELEASE_MEMORY_EVERY = 10      # frames between returns of freed heap memory to the system (memory.py)
 
 # A capture whose first this many frames are all unusable is refused as a whole (exit 2).
 MAX_LEADING_BAD_FRAMES = 10
@@ -144,6 +147,8 @@ class Pipeline:
         self._last_step = None
         if resume:
             self._resume()
+        elif self.out_dir is not None:
+            self.slam.keyframes.attach(self.out_dir / "checkpoint" / KEYFRAME_FILE)
 
     def _live_engine(self) -> LiveEngine:
         if self.live_engine is None:
@@ -239,6 +244,8 @@ class Pipeline:
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
             is_keyframe=result.is_keyframe))
+        if (k + 1) % RELEASE_MEMORY_EVERY == 0:
+            release_free_memory()
         every = self.config.checkpoint_every
         if self.out_dir is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
             self.save_checkpoint()
@@ -299,7 +306,7 @@ class Pipeline:
             raise InputError(f"{self.out_dir}: the checkpoint was made with another config")
         if ckpt.meta.get("engine", "sequential") != self.engine:
             raise InputError(f"{self.out_dir}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
-        self.slam.load_state_arrays(ckpt.arrays)
+        self.slam.load_state_arrays(ckpt.arrays, self.out_dir / "checkpoint" / KEYFRAME_FILE)
         self.records = list(ckpt.meta["records"])
         self.cursor = int(ckpt.meta.get("cursor", len(self.records)))
         self.skipped = list(ckpt.meta.get("skipped", []))
@@ -316,7 +323,7 @@ class Pipeline:
         for k in picks:
             frame = self.frame(k)
             with torch.no_grad():
-                out = self.slam.renderer.render(g, self.intrinsics, self.slam.w2cs[k])
+                out = self.slam.renderer.render_visible(g, self.intrinsics, self.slam.w2cs[k])
             color = torch.as_tensor(frame.color, device=out.color.device)
             depth = torch.as_tensor(frame.depth, device=out.depth.device)
             psnrs.append(float(M.psnr(out.color, color)))
