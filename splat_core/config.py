@@ -275,6 +275,7 @@ def describe_layers(config: Config) -> str:
     """One line: which budget and which format layer make `config` (printed by run, viewer, info)."""
     if not config.format_layer:
         return f"budget {config.name}, no format layer"
+
     def resolved(key):
         value = config
         for part in key.split("."):
