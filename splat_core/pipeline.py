@@ -35,6 +35,7 @@ from .io.source import FrameSource
 from .keyframes import KEYFRAME_FILE, Keyframe
 from .live import LiveEngine
 from .memory import release_free_memory
+from .resolution import source_working_size
 from .slam import FrameResult, MapVersion, SplaTAM
 
 ENGINES = ("sequential", "live")
@@ -132,9 +133,8 @@ class Pipeline:
             if not self.indices:
                 raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
             self.total = len(self.indices)
-        native = source.intrinsics
-        width, height = config.resolution or (native.width, native.height)
-        self.intrinsics = native.scaled(int(width), int(height))
+        # The preset's resolution on this capture's shape (aspect kept; resolution.py).
+        self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
         self.slam = SplaTAM(config, self.intrinsics, device=self.device)
         self.slam.total_frames = self.total
         self.live_engine: LiveEngine | None = None     # the mapper thread of the live engine, once started
@@ -174,11 +174,12 @@ class Pipeline:
     def frame_at(self, i: int, raw: Frame | None = None) -> Frame:
         """Capture frame i (or `raw`, that frame as received) at the working resolution, depth cut at
         max_depth; InputError naming the file when it is unusable."""
-        frame = self.source[i] if raw is None else raw
+        w, h = self.intrinsics.width, self.intrinsics.height
+        frame = self.source.frame_at_size(i, w, h) if raw is None else raw
         name = self.source._name(i, "depth") if hasattr(self.source, "_name") else \
             f"{getattr(self.source, 'path', 'input')} frame {i}"
         check_frame(frame, name)
-        frame = resize_frame(frame, self.intrinsics.width, self.intrinsics.height)
+        frame = resize_frame(frame, w, h)
         if self.config.max_depth:
             frame.depth = np.where(frame.depth <= self.config.max_depth, frame.depth, 0).astype(np.float32)
         return frame
@@ -395,8 +396,3 @@ class Pipeline:
             self.save_checkpoint()
         return result
 
-
-def config_summary(config: Config) -> str:
-    d = dataclasses.asdict(config)
-    return (f"{config.name}: track {d['tracking']['iterations']} it, map {d['mapping']['iterations']} it, "
-            f"window {d['mapping']['window_size']}, resolution {config.resolution or 'native'}")
