@@ -7,7 +7,10 @@ born in (previous keyframe, keyframe]; `/map/tail` those born after the last key
 keyframe sends only its own chunk; the tail is small. Because SLAM keeps refining old Gaussians
 (and prunes some), every node is refreshed from the latest snapshot in one atomic
 "consolidation" every few keyframes / seconds and whenever the run pauses or ends. Scrubbing to
-keyframe k just toggles visibility of the chunks after k (cheap: no re-upload).
+keyframe k just toggles visibility of the chunks after k (cheap: no re-upload). A consolidation
+re-sends only the chunks whose Gaussians changed (a fingerprint of their arrays): mapping moves
+only what the window sees, so on a capture that keeps exploring the chunks left behind are not
+sent again and an update costs what changed, not the whole map.
 
 Covariances travel as float16, so positions and covariances are uploaded multiplied by
 WORLD_SCALE and each node gets `scale=1/WORLD_SCALE` (the notes' nerfstudio trick), keeping
@@ -16,6 +19,7 @@ millimetre-sized Gaussians representable.
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import time
 
@@ -55,6 +59,14 @@ def splat_payload(arrays: dict, index: np.ndarray | None = None):
     return means * np.float32(WORLD_SCALE), cov, rgbs, opacities
 
 
+def chunk_fingerprint(arrays: dict, index: np.ndarray) -> bytes:
+    """A digest of the Gaussians `index` of raw arrays (equal digests: nothing to re-send)."""
+    h = hashlib.blake2b(digest_size=16)
+    for name in ("means", "colors", "rotations", "logit_opacities", "log_scales"):
+        h.update(np.ascontiguousarray(np.asarray(arrays[name])[index]).tobytes())
+    return h.digest()
+
+
 class MapLayer:
     """Splat chunks per keyframe under `/map` (see the module docstring)."""
 
@@ -70,8 +82,10 @@ class MapLayer:
         self._map_version = -1
         self._keyframes_at_consolidation = 0
         self._consolidated_at = time.monotonic()
+        self._fingerprints: dict[str, bytes] = {}                  # name -> digest of what was sent
         self.last_update_seconds = 0.0
         self.consolidations = 0
+        self.chunks_sent = 0
 
     @staticmethod
     def chunk_name(frame_index: int) -> str:
@@ -103,10 +117,15 @@ class MapLayer:
                 is_new = name not in self._order
                 if consolidate or is_new or name == "/map/tail":
                     idx = order[starts[k]:starts[k + 1]]
+                    digest = chunk_fingerprint(snap.gaussians, idx)
+                    if self._fingerprints.get(name) == digest:
+                        continue
+                    self._fingerprints[name] = digest
                     payloads[name] = splat_payload(snap.gaussians, idx) if len(idx) else None
             with self.server.atomic():
                 for name, payload in payloads.items():
                     self._send(name, payload, self._visible(names.index(name), K))
+                    self.chunks_sent += payload is not None
                 for stale in [n for n in self._order if n not in names]:  # keyframes never vanish,
                     self._drop(stale)                                      # but be safe
             self._order = names
@@ -133,6 +152,7 @@ class MapLayer:
 
     def _drop(self, name: str) -> None:
         handle = self._nodes.pop(name, None)
+        self._fingerprints.pop(name, None)
         if handle is not None:
             handle.remove()
 

@@ -143,6 +143,22 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         app.close()
 
 
+def test_consolidation_resends_only_the_chunks_that_changed(server):
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer_scene import MapLayer
+
+    m = blob_map(300, 0).to_numpy()
+    m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks, no tail
+    kfs = tuple(KeyframeView(f, np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in (0, 5, 10))
+    snap = lambda version, g: MapSnapshot(version, "running", 10, 11, version, g, kfs)  # noqa: E731
+    layer = MapLayer(server)
+    assert layer.update(snap(1, m), force_consolidate=True) and layer.chunks_sent == 3
+    moved = {k: np.array(v) for k, v in m.items()}
+    moved["means"][250:] += 0.01                                # mapping moved Gaussians of the last chunk only
+    assert layer.update(snap(2, moved), force_consolidate=True)
+    assert layer.chunks_sent == 4 and layer.consolidations == 2
+
+
 def make_run(tmp_path, n=400):
     run = tmp_path / "run"
     m = blob_map(n, 0)
