@@ -2,6 +2,10 @@
 
 Both are written atomically, meta last: meta names the number of frames the arrays hold, so a
 crash between the two writes is detected and the older pair is never mixed with the newer.
+The keyframe images are not in state.npz: they are appended once each to
+`checkpoint/keyframes.bin` as they are made (keyframes.py), and the arrays name how many of its
+records belong to the checkpoint, so a checkpoint costs the map and the poses, not the run's
+length.
 """
 
 from __future__ import annotations
