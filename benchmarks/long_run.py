@@ -5,6 +5,7 @@ keeps exploring; prints JSON (one object per run).
     python benchmarks/long_run.py memory --frames 1000 --size 640x480
     python benchmarks/long_run.py memory --frames 400 --code OLD_CHECKOUT     # the same run on other code
     python benchmarks/long_run.py time --frames 1000 --size 320x240 --preset cpu
+    python benchmarks/long_run.py time --frames 1000 --size 160x120 --given-poses   # mapping's cost alone
 
 memory: the synthetic room (synthetic.py) at twice the hand-held speed, so the camera orbits the
 room more than once, with the reference poses given (tracking.use_reference_poses) and short
@@ -98,7 +99,10 @@ def child_time(args) -> dict:
     from splat_core.synthetic_corridor import CorridorSource
 
     w, h = args.size
-    cfg = load_config(args.preset, overrides={"resolution": [w, h], "eval_every": 10**9})
+    overrides = {"resolution": [w, h], "eval_every": 10**9}
+    if args.given_poses:
+        overrides["tracking"] = {"use_reference_poses": True}
+    cfg = load_config(args.preset, overrides=overrides)
     n = args.frames
     with tempfile.TemporaryDirectory() as tmp:
         pipe = Pipeline(CorridorSource(n_frames=n, width=w, height=h), cfg, Path(tmp) / "run", engine=args.engine)
@@ -115,6 +119,7 @@ def child_time(args) -> dict:
                     gaussians=part[-1]["num_gaussians"])
     early, late = window(n // 10, n // 5), window(n - n // 10, n)
     return dict(mode="time", frames=n, size=f"{w}x{h}", preset=args.preset, engine=args.engine,
+                poses="given" if args.given_poses else "tracked",
                 code=args.code or str(ROOT), early=early, late=late,
                 ratio_late_to_early=round(late["s_per_frame"] / early["s_per_frame"], 3),
                 ate_rmse_cm=metrics["ate_rmse_cm"], machine=machine())
@@ -127,6 +132,8 @@ def main(argv=None) -> int:
     p.add_argument("--size", default="320x240", type=lambda s: tuple(int(v) for v in s.lower().split("x")))
     p.add_argument("--preset", default="cpu")
     p.add_argument("--engine", default="sequential", choices=["sequential", "live"])
+    p.add_argument("--given-poses", action="store_true",
+                   help="time: map with the reference poses (the cost of mapping alone, whatever tracking does)")
     p.add_argument("--code", default=None, help="another checkout to import splat_core from")
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
