@@ -75,11 +75,12 @@ def test_refine_improves_heldout_psnr_and_keeps_the_metrics(run, capsys):
     assert json.loads(out.strip().splitlines()[-1])["after_psnr"] == section["after"]["psnr"]
 
 
-def test_working_resolution_uses_the_stored_keyframes(run, tmp_path):
-    shutil.rmtree(tmp_path / "cap", ignore_errors=True)
+def test_working_resolution_uses_the_stored_keyframes(run):
     job = RefineJob(run, RefineSettings(iterations=5), resolution="working")
     assert (job.intrinsics.width, job.intrinsics.height) == (32, 24)
     assert [v.color.shape for v in job.refiner.views] == [(24, 32, 3)] * 7
+    for view, kf in zip(job.refiner.views, job.run.slam.keyframes):
+        assert np.array_equal(view.color.numpy(), kf.color) and np.array_equal(view.w2c, kf.w2c)
 
 
 def test_resume_equals_an_uninterrupted_refine(run, tmp_path):
