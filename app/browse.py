@@ -97,8 +97,8 @@ def load_run(path) -> MapSnapshot:
             g = ckpt.gaussians()
             if "birth_frame" in g and len(g["birth_frame"]) == len(gaussians["means"]):
                 gaussians["birth_frame"] = np.asarray(g["birth_frame"], np.int64)
-            keyframes = _checkpoint_keyframes(ckpt.arrays)
             intrinsics = _checkpoint_intrinsics(ckpt)
+            keyframes = _checkpoint_keyframes(path / "checkpoint", ckpt.arrays, intrinsics)
         metrics = path / "metrics.json"
         if metrics.is_file():
             try:
@@ -117,13 +117,10 @@ def load_run(path) -> MapSnapshot:
         out_dir=path if path.is_dir() else None)
 
 
-def _checkpoint_keyframes(arrays: dict) -> tuple:
-    if "kf_index" not in arrays or len(arrays["kf_index"]) == 0:
+def _checkpoint_keyframes(checkpoint_dir: Path, arrays: dict, intrinsics: Intrinsics | None) -> tuple:
+    if "kf_index" not in arrays or len(arrays["kf_index"]) == 0 or intrinsics is None:
         return ()
-    views = []
-    for j, f in enumerate(np.asarray(arrays["kf_index"])):
-        color = np.asarray(arrays["kf_color"][j], np.float32)
-        views.append(KeyframeView(int(f), frozen(invert_pose(np.asarray(arrays["kf_w2c"][j], np.float64))),
-                                  frozen(make_thumbnail(color)), frozen(color),
-                                  frozen(np.asarray(arrays["kf_depth"][j], np.float32))))
-    return tuple(views)
+    from splat_core.keyframes import read_keyframes
+
+    return tuple(KeyframeView(kf.frame_index, frozen(invert_pose(kf.w2c)), frozen(make_thumbnail(kf.color)), kf)
+                 for kf in read_keyframes(checkpoint_dir, arrays, intrinsics))

@@ -32,13 +32,25 @@ def frozen(a):
 
 @dataclass(frozen=True)
 class KeyframeView:
-    """One keyframe as the viewer shows it: pose, a small thumbnail and the captured images."""
+    """One keyframe as the viewer shows it: pose, a small thumbnail and the captured images.
+
+    The images stay with the engine's keyframe (compact, maybe in its file) and are decoded when
+    asked for, so snapshots do not hold a float copy of every keyframe."""
 
     frame_index: int            # processed-frame number (matches Gaussians' birth_frame)
     c2w: np.ndarray             # 4 x 4, camera-to-world, OpenCV axes
     thumbnail: np.ndarray       # h x w x 3 uint8 (about 100 px tall)
-    color: np.ndarray | None = None   # H x W x 3 float32 in [0, 1] at the working resolution
-    depth: np.ndarray | None = None   # H x W float32 metres
+    images: object = None       # a splat_core.keyframes.Keyframe (immutable images), or None
+
+    @property
+    def color(self) -> np.ndarray | None:
+        """H x W x 3 float32 in [0, 1] at the working resolution."""
+        return None if self.images is None else self.images.color
+
+    @property
+    def depth(self) -> np.ndarray | None:
+        """H x W float32 metres."""
+        return None if self.images is None else self.images.depth
 
 
 @dataclass(frozen=True)

@@ -317,8 +317,8 @@ class ViewerApp:
                                   t(g["logit_opacities"]), t(g["log_scales"]))
             self._render_cache = cache = (key, gaussians)
         with torch.no_grad():
-            return Renderer(snap.near_plane, self.render_backend).render(
-                cache[1], intr, torch.as_tensor(w2c, dtype=torch.float32))
+            return Renderer(snap.near_plane, self.render_backend).render_visible(
+                cache[1], intr, np.asarray(w2c, np.float32))
 
     # ------------------------------------------------------------------ export
     def export_files(self, what: str) -> tuple[str, bytes, Path | None]:

@@ -186,7 +186,7 @@ class SlamWorker(threading.Thread):
                 intr = intr.scaled(w, max(1, int(round(intr.height * w / intr.width))))
             renderer = Renderer(self.pipeline.config.near_plane, self.render_backend)
             with torch.no_grad():   # the newest published map: never a tensor the mapper is stepping
-                out = renderer.render(self.pipeline.map_version().gaussians, intr, r.w2c)
+                out = renderer.render_visible(self.pipeline.map_version().gaussians, intr, r.w2c)
             rc, rd, ra = (t.detach().cpu().numpy() for t in out)
             import cv2
 
@@ -205,8 +205,7 @@ class SlamWorker(threading.Thread):
             view = self._keyframe_views.get(kf.frame_index)
             if view is None:
                 c2w = np.linalg.inv(np.asarray(kf.w2c, np.float64))
-                view = KeyframeView(int(kf.frame_index), frozen(c2w), frozen(make_thumbnail(kf.color)),
-                                    frozen(kf.color), frozen(kf.depth))
+                view = KeyframeView(int(kf.frame_index), frozen(c2w), frozen(make_thumbnail(kf.color)), kf)
                 self._keyframe_views[kf.frame_index] = view
             views.append(view)
         return tuple(views)

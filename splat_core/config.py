@@ -1,10 +1,17 @@
-"""Typed configuration: YAML presets in `configs/`, composed with '+', unknown keys are errors.
+"""Typed configuration in two layers: a budget (what the machine affords) and a format layer
+(what the capture is). YAML presets in `configs/`, composed with '+', unknown keys are errors.
 
-    load_config("splatam")            the paper's Replica settings
-    load_config("splatam_s")          the paper's fast variant
-    load_config("cpu")                sized for a 2-core CPU
-    load_config("splatam+tum")        a preset, then a per-dataset override (configs/datasets/)
-    load_config("my.yaml")            any file; it may name `base: splatam` to start from a preset
+    load_config("cpu", format="record3d")   a budget, over the format layer of the capture
+    load_config("splatam")                  the paper's Replica settings (the `splatam` budget)
+    load_config("splatam_tum")              a paper preset: the paper's TUM settings (configs/paper/)
+    load_config("cpu+record3d")             a format layer named explicitly (replaces the detected one)
+    load_config("my.yaml")                  any file; it may name `base: splatam` to start from a preset
+
+Budgets (configs/*.yaml: cpu, cpu_dense, splatam, splatam_s) set iterations, learning rates,
+resolution and window. Format layers (configs/formats/<format>.yaml, one per capture format,
+applied by themselves for the detected format) may set only FORMAT_KEYS: depth range, confidence,
+depth upsampling, keyframe rules. The layer is applied first, so a budget's iteration counts hold
+under every format. Paper presets (configs/paper/) are the paper's per-dataset combinations.
 """
 
 from __future__ import annotations
@@ -84,6 +91,7 @@ class KeyframeConfig:
     selection: str = "overlap"            # "overlap" (paper: top-k) or "random" (original code)
     overlap_samples: int = 1600
     overlap_border: int = 20
+    memory_mb: float = 512.0              # keyframe images kept in host memory; older ones are read from a file (keyframes.py)
 
 
 @dataclass
@@ -94,8 +102,11 @@ class LiveConfig:
 @dataclass
 class Config:
     name: str = "splatam"
-    resolution: list | None = None        # [width, height] working resolution; None = capture's
+    format_layer: str | None = None       # the format layer applied (configs/formats/), None = none
+    resolution: list | int | None = None  # [width, height] pixel budget or a long side, aspect kept (resolution.py); None = capture's
+    depth_upsampling: float | None = 1.0  # work at most this x the depth grid where colour is larger (None: up to colour)
     max_depth: float | None = None        # ignore depth beyond this (metres)
+    min_confidence: int | None = None     # phones: keep depth with LiDAR confidence >= this (0-2; None: the reader's, 2)
     isotropic: bool = True
     near_plane: float = 0.01
     scene_radius_depth_ratio: float = 3.0
@@ -126,11 +137,13 @@ class Config:
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
+            (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),
             (self.keyframes.selection in ("overlap", "random"), "keyframes.selection must be overlap or random"),
             (0 < self.tracking.resolution_scale <= 1, "tracking.resolution_scale must be in (0, 1]"),
             (0 < self.densify.resolution_scale <= 1, "densify.resolution_scale must be in (0, 1]"),
-            (self.resolution is None or (len(self.resolution) == 2 and min(self.resolution) > 0),
-             "resolution must be [width, height]"),
+            (_valid_resolution(self.resolution), "resolution must be [width, height], a long side or null"),
+            (self.depth_upsampling is None or self.depth_upsampling >= 1, "depth_upsampling must be >= 1 or null"),
+            (self.min_confidence in (None, 0, 1, 2), "min_confidence must be 0, 1, 2 or null"),
             (self.scene_radius_depth_ratio > 0, "scene_radius_depth_ratio must be > 0"),
             (set(self.mapping.lrs) == {"means", "colors", "rotations", "logit_opacities", "log_scales"},
              "mapping.lrs needs means, colors, rotations, logit_opacities, log_scales"),
@@ -139,6 +152,13 @@ class Config:
             if not ok:
                 raise InputError(f"config {self.name}: {message}")
         return self
+
+
+def _valid_resolution(r) -> bool:
+    if r is None or (isinstance(r, int) and not isinstance(r, bool)):
+        return r is None or r > 0
+    return isinstance(r, (list, tuple)) and len(r) == 2 and all(
+        isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in r)
 
 
 def _merge(target, values: dict, where: str):
@@ -161,16 +181,36 @@ def _merge(target, values: dict, where: str):
             setattr(target, key, value)
 
 
+# Where '+'-joined names are looked up: budgets, paper presets, format layers.
+LAYER_DIRS = ("", "paper", "formats")
+# What a format layer may set: what the capture is, never what the machine affords.
+FORMAT_KEYS = ("max_depth", "min_confidence", "depth_upsampling", "keyframes")
+# Sources whose format layer has another name.
+FORMAT_ALIASES = {"nerfcapture-stream": "nerfcapture"}
+
+
 def _preset_path(name: str) -> Path:
-    for candidate in (CONFIG_DIR / f"{name}.yaml", CONFIG_DIR / "datasets" / f"{name}.yaml"):
+    for sub in LAYER_DIRS:
+        candidate = CONFIG_DIR / sub / f"{name}.yaml"
         if candidate.is_file():
             return candidate
     return Path(name)
 
 
+def format_layer_path(format_name: str | None) -> Path | None:
+    """configs/formats/<format>.yaml for a capture format (FrameSource.format_name), if there is one."""
+    if not format_name:
+        return None
+    path = CONFIG_DIR / "formats" / f"{FORMAT_ALIASES.get(format_name, format_name)}.yaml"
+    return path if path.is_file() else None
+
+
+def _is_format_layer(path: Path) -> bool:
+    return path.is_file() and path.resolve().parent == CONFIG_DIR / "formats"
+
+
 def preset_names() -> list[str]:
-    return sorted(p.stem for p in CONFIG_DIR.glob("*.yaml")) + sorted(
-        p.stem for p in (CONFIG_DIR / "datasets").glob("*.yaml"))
+    return [p.stem for sub in LAYER_DIRS for p in sorted((CONFIG_DIR / sub).glob("*.yaml"))]
 
 
 def _read_yaml(path: Path) -> dict:
@@ -190,22 +230,64 @@ def _apply(config: Config, spec: str, seen: tuple = ()) -> None:
     if str(path) in seen:
         raise InputError(f"{path}: 'base' chain loops")
     data = _read_yaml(path)
+    if _is_format_layer(path):
+        wrong = sorted(set(data) - set(FORMAT_KEYS))
+        if wrong:
+            raise InputError(f"{path}: a format layer may set only {', '.join(FORMAT_KEYS)}, not {', '.join(wrong)} "
+                             "(iterations, learning rates and resolution belong to the budget presets)")
+        config.format_layer = path.stem
     base = data.pop("base", None)
     if base:
         _apply(config, str(base), seen + (str(path),))
     _merge(config, data, str(path))
 
 
-def load_config(spec: str | None = None, overrides: dict | None = None) -> Config:
-    """Build a Config from preset names / files joined by '+', then `overrides` (a nested dict)."""
+def load_config(spec: str | None = None, overrides: dict | None = None, *, format: str | None = None) -> Config:
+    """Build a Config: the format layer of capture format `format` (unless `spec` names a format
+    layer itself), then the presets / files of `spec` joined by '+', then `overrides` (a nested dict)."""
     spec = spec or "splatam"
+    parts = [part.strip() for part in spec.split("+")]
     config = Config()
-    for part in spec.split("+"):
-        _apply(config, part.strip())
+    layer = format_layer_path(format)
+    if layer is not None and not any(_is_format_layer(_preset_path(part)) for part in parts):
+        _apply(config, str(layer))
+    for part in parts:
+        _apply(config, part)
     if overrides:
         _merge(config, overrides, "overrides")
     config.name = spec
     return config.validate()
+
+
+def format_layer_settings(name: str | None) -> dict:
+    """What format layer `name` sets, flattened ({"max_depth": 5.0, "keyframes.every": 2})."""
+    path = format_layer_path(name)
+    if path is None:
+        return {}
+    flat = {}
+    for key, value in _read_yaml(path).items():
+        if isinstance(value, dict):
+            flat.update({f"{key}.{k}": v for k, v in value.items()})
+        else:
+            flat[key] = value
+    return flat
+
+
+def describe_layers(config: Config) -> str:
+    """One line: which budget and which format layer make `config` (printed by run, viewer, info)."""
+    if not config.format_layer:
+        return f"budget {config.name}, no format layer"
+
+    def resolved(key):
+        value = config
+        for part in key.split("."):
+            value = getattr(value, part)
+        return value
+
+    settings = format_layer_settings(config.format_layer)
+    what = ", ".join(f"{k} {v}" if resolved(k) == v else f"{k} {resolved(k)} (the layer's {v}, replaced by {config.name})"
+                     for k, v in settings.items()) or "nothing to change"
+    return f"budget {config.name} + format layer {config.format_layer} ({what})"
 
 
 def config_from_dict(data: dict) -> Config:

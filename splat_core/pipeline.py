@@ -32,8 +32,10 @@ from .frame import Frame, resize_frame
 from .io import checkpoint
 from .io.atomic import write_text_atomic
 from .io.source import FrameSource
-from .keyframes import Keyframe
+from .keyframes import KEYFRAME_FILE, Keyframe
 from .live import LiveEngine
+from .memory import release_free_memory
+from .resolution import source_working_size
 from .slam import FrameResult, MapVersion, SplaTAM
 
 ENGINES = ("sequential", "live")
@@ -62,6 +64,8 @@ def resolve_device(device: str) -> torch.device:
     return torch.device(device)
 
 
+RELEASE_MEMORY_EVERY = 10      # frames between returns of freed heap memory to the system (memory.py)
+
 # A capture whose first this many frames are all unusable is refused as a whole (exit 2).
 MAX_LEADING_BAD_FRAMES = 10
 
@@ -79,7 +83,7 @@ def prepare_frame(source: FrameSource, i: int, intrinsics: Intrinsics, max_depth
                   raw: Frame | None = None) -> Frame:
     """Capture frame i (or `raw`, that frame as received) at `intrinsics`' resolution, depth cut at
     max_depth; InputError naming the file when it is unusable."""
-    frame = source[i] if raw is None else raw
+    frame = source.frame_at_size(i, intrinsics.width, intrinsics.height) if raw is None else raw
     name = source._name(i, "depth") if hasattr(source, "_name") else f"{getattr(source, 'path', 'input')} frame {i}"
     check_frame(frame, name)
     frame = resize_frame(frame, intrinsics.width, intrinsics.height)
@@ -151,9 +155,8 @@ class Pipeline:
             if not self.indices:
                 raise InputError(f"{getattr(source, 'path', 'input')}: no frames to process")
             self.total = len(self.indices)
-        native = source.intrinsics
-        width, height = config.resolution or (native.width, native.height)
-        self.intrinsics = native.scaled(int(width), int(height))
+        # The preset's resolution on this capture's shape (aspect kept; resolution.py).
+        self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
         self.slam = SplaTAM(config, self.intrinsics, device=self.device)
         self.slam.total_frames = self.total
         self.live_engine: LiveEngine | None = None     # the mapper thread of the live engine, once started
@@ -166,6 +169,8 @@ class Pipeline:
         self._last_step = None
         if resume:
             self._resume()
+        elif self.out_dir is not None:
+            self.slam.keyframes.attach(self.out_dir / "checkpoint" / KEYFRAME_FILE)
 
     def _live_engine(self) -> LiveEngine:
         if self.live_engine is None:
@@ -254,6 +259,8 @@ class Pipeline:
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
             is_keyframe=result.is_keyframe))
+        if (k + 1) % RELEASE_MEMORY_EVERY == 0:
+            release_free_memory()
         every = self.config.checkpoint_every
         if self.out_dir is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
             self.save_checkpoint()
@@ -314,7 +321,7 @@ class Pipeline:
             raise InputError(f"{self.out_dir}: the checkpoint was made with another config")
         if ckpt.meta.get("engine", "sequential") != self.engine:
             raise InputError(f"{self.out_dir}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
-        self.slam.load_state_arrays(ckpt.arrays)
+        self.slam.load_state_arrays(ckpt.arrays, self.out_dir / "checkpoint" / KEYFRAME_FILE)
         self.records = list(ckpt.meta["records"])
         self.cursor = int(ckpt.meta.get("cursor", len(self.records)))
         self.skipped = list(ckpt.meta.get("skipped", []))
@@ -331,7 +338,7 @@ class Pipeline:
         for k in picks:
             frame = self.frame(k)
             with torch.no_grad():
-                out = self.slam.renderer.render(g, self.intrinsics, self.slam.w2cs[k])
+                out = self.slam.renderer.render_visible(g, self.intrinsics, self.slam.w2cs[k])
             color = torch.as_tensor(frame.color, device=out.color.device)
             depth = torch.as_tensor(frame.depth, device=out.depth.device)
             psnrs.append(float(M.psnr(out.color, color)))
@@ -403,8 +410,3 @@ class Pipeline:
             self.save_checkpoint()
         return result
 
-
-def config_summary(config: Config) -> str:
-    d = dataclasses.asdict(config)
-    return (f"{config.name}: track {d['tracking']['iterations']} it, map {d['mapping']['iterations']} it, "
-            f"window {d['mapping']['window_size']}, resolution {config.resolution or 'native'}")

@@ -158,7 +158,7 @@ class SplaTAM:
             mask = depth_d > 0
         else:
             with torch.no_grad():
-                out = self.renderer.render(self.map.tensors(detach=True), intr, w2c)
+                out = self.renderer.render_visible(self.map, intr, w2c)
             mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), out.alpha.cpu().numpy(), self.config.densify)
         new = gaussians_from_pixels(color_d, depth_d, mask, intr, w2c, t, self.config.densify,
                                     self.config.isotropic, device=self.device, dtype=self.dtype)
@@ -213,10 +213,11 @@ class SplaTAM:
         arrays["tracker_state"] = np.array(self.tracker.state())
         return arrays
 
-    def load_state_arrays(self, arrays: dict) -> None:
+    def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
+        """Restore a checkpoint; the keyframe images are the first records of `keyframe_file`."""
         self.map = GaussianMap.from_numpy({k[4:]: v for k, v in arrays.items() if k.startswith("map_")},
                                           device=self.device, dtype=self.dtype)
-        self.keyframes.load_arrays(arrays)
+        self.keyframes.load_arrays(arrays, keyframe_file)
         self.w2cs = [w for w in np.asarray(arrays["w2cs"], dtype=np.float64)]
         radius = float(arrays["scene_radius"])
         self.scene_radius = None if np.isnan(radius) else radius

@@ -129,10 +129,13 @@ def _default_objects():
 
 @dataclass
 class SyntheticScene:
-    """The room and its objects with seed-dependent textures. `render(c2w, intrinsics)` ray-casts."""
+    """The room and its objects with seed-dependent textures. `render(c2w, intrinsics)` ray-casts.
+    `lo` / `hi`: the room's corners (default the 6 x 3 x 6 m room)."""
 
     seed: int = 0
     objects: list = field(default_factory=_default_objects)
+    lo: np.ndarray = field(default_factory=lambda: ROOM_MIN.copy())
+    hi: np.ndarray = field(default_factory=lambda: ROOM_MAX.copy())
 
     def __post_init__(self):
         rng = np.random.default_rng(self.seed)
@@ -164,7 +167,7 @@ class SyntheticScene:
         faces = [(WALL_XN, WALL_XP), (CEILING, FLOOR), (WALL_ZN, WALL_ZP)]
         for k in range(3):
             pos = d[k] > 0
-            t_k = (np.where(pos, ROOM_MAX[k], ROOM_MIN[k]) - origin[k]) * inv[k]
+            t_k = (np.where(pos, self.hi[k], self.lo[k]) - origin[k]) * inv[k]
             s_k = np.where(pos, faces[k][1], faces[k][0])
             if t_best is None:
                 t_best, surf = t_k, s_k
@@ -269,7 +272,7 @@ class SyntheticScene:
         camera at `c2w` (4x4, OpenCV axes). The camera centre must be inside the room."""
         c2w = np.asarray(c2w, dtype=np.float64)
         origin = c2w[:3, 3]
-        if np.any(origin <= ROOM_MIN) or np.any(origin >= ROOM_MAX):
+        if np.any(origin <= self.lo) or np.any(origin >= self.hi):
             raise ValueError(f"camera centre {origin} is outside the synthetic room")
         K = intrinsics
         u, v = np.meshgrid(np.arange(K.width, dtype=np.float64), np.arange(K.height, dtype=np.float64))

@@ -37,7 +37,6 @@ from .config import TrackingConfig
 from .direct_align import align_to_map
 from .frame import resize_to
 from .gaussians import Gaussians
-from .mapping import frustum_mask
 from .pixel_selection import choose_pixels
 from .render import Render, Renderer
 
@@ -222,10 +221,7 @@ class Tracker:
     # -------------------------------------------------------------- helpers
     def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:
         """The Gaussians that can appear in the frame (with a margin for the motion to come)."""
-        keep = frustum_mask(gaussians.means, gaussians.log_scales, self.intrinsics, w2c, self.renderer.near,
-                            margin=0.25)
-        return Gaussians(*(x[keep] for x in (gaussians.means, gaussians.colors, gaussians.rotations,
-                                              gaussians.logit_opacities, gaussians.log_scales)))
+        return self.renderer.visible(gaussians, self.intrinsics, w2c, margin=0.25)
 
     def observe(self, color: np.ndarray, depth: np.ndarray, intr: Intrinsics) -> Observation:
         """The frame at `intr`, reduced to the configured pixel subset."""

@@ -101,9 +101,14 @@ class Publisher:
 
 def play(fields_list, typenames, interval: float = 0.0, gate: threading.Event | None = None) -> threading.Thread:
     """Publish in a thread once a reader is there; message i under typenames[i % len]. With `gate`,
-    each message after the first waits until the gate is set (then clears it)."""
+    each message after the first waits until the gate is set (then clears it).
+
+    The writers are made here, before the caller starts its reader: Cyclone DDS can fail to create
+    a topic ("Non specific error") when two threads of one process create the same topic name
+    under different types at the same moment, which made this helper flaky."""
+    pubs = [Publisher(name) for name in typenames]
+
     def run():
-        pubs = [Publisher(name) for name in typenames]
         if not all(p.wait_for_reader() for p in pubs):
             return
         for i, fields in enumerate(fields_list):

@@ -395,3 +395,35 @@ def test_slam_on_cuda_tracks_like_the_cpu():
         pass
     assert pipe.slam.map.device.type == "cuda"
     assert pipe.ate_cm() < 1.0
+
+
+def test_keyframes_are_compact_and_spill_to_their_file_unchanged(tmp_path):
+    f = small_source(n=1, w=64, h=48, noise=0.002)[0]
+    store = KeyframeStore(KeyframeConfig(memory_mb=0.02), f.intrinsics)     # room for one 64x48 keyframe
+    store.attach(tmp_path / "keyframes.bin")
+    for i in range(3):
+        store.add(i, np.eye(4), f.color, f.depth)
+    assert store.resident_bytes() == 64 * 48 * 5                              # uint8 colour + uint16 depth
+    assert [kf.resident for kf in store] == [False, False, True]
+    assert (tmp_path / "keyframes.bin").stat().st_size == 3 * 64 * 48 * 5
+    for kf in store:                                                          # read back from the file
+        assert kf.color.dtype == np.float32 and np.abs(kf.color - f.color).max() <= 0.5 / 255 + 1e-7
+        assert np.abs(kf.depth - f.depth).max() <= 0.5 * f.depth.max() / 65535 + 1e-6
+        assert np.array_equal(kf.depth > 0, f.depth > 0)
+    # A resumed store reads the checkpoint's records and drops what was appended after them.
+    arrays = store.to_arrays()
+    store.add(3, np.eye(4), f.color, f.depth)
+    again = KeyframeStore(KeyframeConfig(memory_mb=0.02), f.intrinsics)
+    again.load_arrays(arrays, tmp_path / "keyframes.bin")
+    assert len(again) == 3 and (tmp_path / "keyframes.bin").stat().st_size == 3 * 64 * 48 * 5
+    assert all(np.array_equal(a.depth, b.depth) and np.array_equal(a.color, b.color) for a, b in zip(store, again))
+
+
+def test_keyframes_spill_without_a_run_folder():
+    f = small_source(n=1, w=64, h=48)[0]
+    store = KeyframeStore(KeyframeConfig(memory_mb=0), f.intrinsics)
+    kf = store.add(0, np.eye(4), f.color, f.depth)
+    assert store.resident_bytes() == 0 and not kf.resident
+    assert np.abs(kf.color - f.color).max() <= 0.5 / 255 + 1e-7
+    store.close()                                                             # back in memory, still readable
+    assert kf.resident and np.abs(kf.color - f.color).max() <= 0.5 / 255 + 1e-7

@@ -79,7 +79,7 @@ def test_working_resolution_uses_the_stored_keyframes(run):
     job = RefineJob(run, RefineSettings(iterations=5), resolution="working")
     assert (job.intrinsics.width, job.intrinsics.height) == (32, 24)
     assert [v.color.shape for v in job.refiner.views] == [(24, 32, 3)] * 7
-    for view, kf in zip(job.refiner.views, job.run.slam.keyframes):
+    for view, kf in zip(job.refiner.views, job.run.keyframes):
         assert np.array_equal(view.color.numpy(), kf.color) and np.array_equal(view.w2c, kf.w2c)
 
 

@@ -17,7 +17,7 @@ import pytest
 import torch
 
 from splat_core.camera import Intrinsics, quat_to_rotmat, w2c_from_quat_trans
-from splat_core.gaussians import Gaussians
+from splat_core.gaussians import GaussianMap, Gaussians
 from splat_core.render import render
 from splat_core.render import cpu as cpu_backend
 from splat_core.render.cpu import count_intersections, rasterize_cpu
@@ -444,3 +444,20 @@ def test_gsplat_gradients_agree_with_the_cpu_backend(case):
         cos = float(a @ b / (a.norm() * b.norm()))
         ratio = float(a.norm() / b.norm())
         assert cos > 0.97 and 0.85 < ratio < 1.15, f"{name}: cosine {cos:.4f}, norm ratio {ratio:.3f}"
+
+
+def test_render_visible_equals_render_of_the_whole_map():
+    # Culling to the view before rendering changes nothing in the image, only what it costs.
+    from splat_core.render import Renderer
+    from splat_core.camera import pose_matrix, quat_to_rotmat_np
+    rng = np.random.default_rng(5)
+    intr = Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)
+    pts = rng.uniform([-6, -4, -3], [6, 4, 8], (4000, 3))
+    g = GaussianMap.from_points(pts, rng.uniform(0, 1, (4000, 3)), rng.uniform(0.01, 0.2, 4000), 0).tensors(detach=True)
+    renderer = Renderer()
+    w2c = pose_matrix(quat_to_rotmat_np([np.cos(0.2), 0.1, np.sin(0.2), 0]), [0.1, 0, 0.3])
+    visible = renderer.visible(g, intr, w2c)
+    assert 0 < len(visible) < len(g) // 2
+    full, culled = renderer.render(g, intr, w2c), renderer.render_visible(g, intr, w2c)
+    for a, b in zip(full, culled):
+        torch.testing.assert_close(a, b, atol=1e-6, rtol=0)

@@ -56,11 +56,14 @@ def test_run_writes_a_complete_run_folder(capture, capsys):
     assert code == 2 and "--resume" in err
 
 
-@pytest.mark.parametrize("pixels", ["all", "random"])
-def test_resume_equals_an_uninterrupted_run(capture, pixels):
+@pytest.mark.parametrize("pixels,memory_mb", [("all", 512.0), ("random", 0.01)])
+def test_resume_equals_an_uninterrupted_run(capture, pixels, memory_mb):
     # Sequential engine: bit for bit, sparse tracking's random pixel choice included (its state
-    # is in the checkpoint).
-    cfg = load_config(str(capture / "tiny.yaml"), overrides={"tracking": {"pixels": pixels, "pixel_tile": 4}})
+    # is in the checkpoint). memory_mb 0.01 keeps no keyframe in memory: all are read back from
+    # checkpoint/keyframes.bin, and the killed run's keyframe 4, appended after the checkpoint
+    # of frame 3, must be dropped on resume.
+    cfg = load_config(str(capture / "tiny.yaml"), overrides={"tracking": {"pixels": pixels, "pixel_tile": 4},
+                                                             "keyframes": {"memory_mb": memory_mb}})
     full = Pipeline(open_input(capture / "cap"), cfg, capture / "full")
     while full.step() is not None:
         pass
@@ -69,6 +72,7 @@ def test_resume_equals_an_uninterrupted_run(capture, pixels):
     killed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed")
     for _ in range(5):                     # checkpoint written after frame 3; frames 4-5 are lost
         killed.step()
+    assert len(killed.slam.keyframes) == 2 and killed.slam.keyframes.resident_bytes() == (memory_mb > 1) * 2 * 64 * 48 * 5
     del killed
     resumed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed", resume=True)
     assert len(resumed.records) == 3

@@ -73,7 +73,7 @@ class FakePipeline:
         frame = self.frame(k)
         is_kf = k % self.keyframe_every == 0
         if is_kf:
-            self.kf.append(Keyframe(k, w2c, frame.color, frame.depth))
+            self.kf.append(Keyframe.from_images(k, w2c, frame.color, frame.depth))
         self.records.append(dict(index=k, wall_seconds=0.03))
         return FrameResult(k, k / 30.0, w2c, is_kf, len(self.map), self.per_frame, 0,
                            0.01, 0.02, 0.5 / (k + 1), source_index=k, frame=frame)

@@ -1,5 +1,6 @@
-"""`splatam info --input PATH [--format NAME] [--json]`: what a capture holds and whether its
-poses, depth units and intrinsics look consistent (the reprojection check of formats.md)."""
+"""`splatam info --input PATH [--format NAME] [--config NAME] [--json]`: what a capture holds,
+whether its poses, depth units and intrinsics look consistent (the reprojection check of
+formats.md), and which settings layers a run on it would use (budget + format layer)."""
 
 from __future__ import annotations
 
@@ -11,12 +12,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input", required=True, help="capture folder or Record3D .r3d file")
     p.add_argument("--format", default=None, help="reader to use instead of detecting (tum, replica, scannet, "
                                                   "scannetpp, nerfcapture, record3d, strayscanner)")
+    p.add_argument("--config", default=None, help="budget a run would use (default: cpu on a CPU, splatam on a GPU)")
+    p.add_argument("--resolution", default=None, metavar="WxH|L|native", help="as on splatam run")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.add_argument("--gap", type=int, default=10, help="frames between the two views of the pose check (10)")
 
 
-def gather(source, gap: int = 10) -> dict:
-    """Everything `info` reports, as a JSON-ready dict."""
+def settings(source, config) -> dict:
+    """The settings layers a run of `config` on `source` uses, and its working size."""
+    from splat_core.config import describe_layers, format_layer_settings
+    from splat_core.resolution import describe_resolution, source_working_size
+
+    return {"budget": config.name, "format_layer": config.format_layer,
+            "format_settings": format_layer_settings(config.format_layer), "summary": describe_layers(config),
+            "resolution": describe_resolution(config.resolution), "working_size": list(source_working_size(source, config)),
+            "tracking_iterations": config.tracking.iterations, "mapping_iterations": config.mapping.iterations}
+
+
+def gather(source, gap: int = 10, config=None) -> dict:
+    """Everything `info` reports, as a JSON-ready dict (with `config`: the settings a run would use)."""
     from splat_core.io.checks import convention_check, depth_stats, trajectory_length
 
     intr = source.intrinsics
@@ -45,6 +59,8 @@ def gather(source, gap: int = 10) -> dict:
     if info["pose_check"] and info["pose_check"]["ok"] is False:
         warnings.append("pose check: " + info["pose_check"]["message"])
     info["warnings"] = warnings
+    if config is not None:
+        info["settings"] = settings(source, config)
     return info
 
 
@@ -83,15 +99,24 @@ def format_text(info: dict) -> str:
             lines.append(f"pose check   {pc['message']}")
     else:
         lines.append("ref. poses   no")
+    if info.get("settings"):
+        st = info["settings"]
+        w, h = st["working_size"]
+        lines.append(f"settings     {st['summary']}")
+        lines.append(f"a run        {st['tracking_iterations']} tracking + {st['mapping_iterations']} mapping iterations "
+                     f"at {w}x{h} (resolution {st['resolution']}; splatam run --config / --resolution change it)")
     for w in info["warnings"]:
         lines.append(f"warning      {w}")
     return "\n".join(lines)
 
 
 def main(args) -> int:
+    from app.run_setup import load_run_config
     from splat_core.io import open_capture
+    from splat_core.pipeline import resolve_device
 
     source = open_capture(args.input, format=args.format)
-    info = gather(source, gap=args.gap)
+    config = load_run_config(args.config, source.format_name, resolve_device("auto"), args.resolution)
+    info = gather(source, gap=args.gap, config=config)
     print(json.dumps(info, indent=2) if args.json else format_text(info))
     return 0

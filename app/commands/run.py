@@ -9,68 +9,36 @@ from contextlib import nullcontext
 from pathlib import Path
 
 from app.commands.capture import add_idle_timeout, ctrl_c_ends
-from splat_core.errors import InputError
+from app.run_setup import add_run_arguments, setup_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input", required=True, help="capture folder or .r3d/.zip file ('synthetic' for the demo scene, "
                    "nerfcapture:// for the NeRFCapture iPhone app's live stream, recorded to OUT/capture)")
     p.add_argument("--out", required=True, help="run folder to write")
-    p.add_argument("--format", default=None, help="capture format (default: detected)")
-    p.add_argument("--config", default=None, help="preset name(s) joined by '+' or a YAML file "
-                   "(default: cpu on a CPU, splatam on a GPU)")
-    p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
-    p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-    p.add_argument("--engine", default="sequential", choices=["sequential", "live"],
-                   help="sequential: track, then map, frame by frame (deterministic; the default); live: "
-                   "tracking runs ahead while a mapper thread maps (faster, not bitwise reproducible)")
+    add_run_arguments(p, engine_default="sequential")
     p.add_argument("--resume", action="store_true", help="continue from the run folder's checkpoint")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_idle_timeout(p)
 
 
-def default_config_name(device) -> str:
-    return "splatam" if device.type == "cuda" else "cpu"
-
-
 def main(args) -> int:
-    from splat_core.config import load_config
-    from splat_core.pipeline import open_input, resolve_device
-
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise InputError(f"{out}: --out must be a folder")
-    if not args.resume and (out / "checkpoint").exists():
-        raise InputError(f"{out}: already holds a run; pass --resume to continue it or choose another --out")
-    device = resolve_device(args.device)
-    config = load_config(args.config or default_config_name(device))
-    live = args.input.startswith("nerfcapture://")
-    options = dict(capture_dir=out / "capture", idle_timeout=args.idle_timeout) if live else {}
-    source = open_input(None if args.input == "synthetic" else args.input, format=args.format, **options)
-    if live and not args.quiet:
-        from splat_core.io.nerfcapture_stream import waiting_message
-        print(waiting_message(), file=sys.stderr, flush=True)
+    run = setup_from_args(args, out=Path(args.out), idle_timeout=args.idle_timeout, resume=args.resume)
+    if run.live and not args.quiet:
+        print(run.waiting_message(), file=sys.stderr, flush=True)
     try:
-        with ctrl_c_ends(source, "finishing this frame and writing the run") if live else nullcontext():
-            return _run(args, source, config, out)
+        with ctrl_c_ends(run.source, "finishing this frame and writing the run") if run.live else nullcontext():
+            return _run(args, run)
     finally:
-        source.close()
+        run.source.close()
 
 
-def _run(args, source, config, out) -> int:
+def _run(args, run) -> int:
     from tqdm import tqdm
 
-    from splat_core.pipeline import Pipeline, config_summary
-
-    pipe = Pipeline(source, config, out, device=args.device, max_frames=args.max_frames,
-                    stride=args.stride, resume=args.resume, engine=args.engine)
+    pipe, source = run.start(), run.source
     if not args.quiet:
-        print(f"{source.describe()}\nconfig {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
-              f"{pipe.total or 'live'} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}",
-              file=sys.stderr)
-        for note in pipe.notes:
-            print(f"note: {note}", file=sys.stderr)
+        print("\n".join(run.lines()), file=sys.stderr)
     bar = tqdm(total=pipe.total, initial=pipe.cursor, unit="frame", disable=args.quiet,
                dynamic_ncols=True, file=sys.stderr)
     pipe.warn = lambda message: bar.write(f"warning: {message}", file=sys.stderr)   # above the bar

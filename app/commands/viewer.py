@@ -9,6 +9,7 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+from app.run_setup import add_run_arguments, setup_from_args
 from splat_core.errors import InputError
 
 DEFAULT_PORT = 8080
@@ -17,21 +18,13 @@ DEFAULT_PORT = 8080
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input", default=None, help="capture folder or .r3d/.zip, or nerfcapture:// for the NeRFCapture "
                    "iPhone app's live stream, recorded to OUT/capture (default: the synthetic demo scene)")
-    p.add_argument("--format", default=None, help="capture format (default: detected)")
-    p.add_argument("--config", default=None, help="preset name(s) joined by '+' or a YAML file "
-                   "(default: cpu on a CPU, splatam on a GPU)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=None,
                    help=f"port (default {DEFAULT_PORT}, or the next free one; an explicit port must be free; 0 = any)")
     p.add_argument("--out", default=None, help="run folder to write (default: runs/viewer-<time>)")
-    p.add_argument("--max-frames", type=int, default=None, help="process at most N frames")
-    p.add_argument("--stride", type=int, default=1, help="use every K-th frame")
-    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
+    add_run_arguments(p, engine_default="live")
     p.add_argument("--open", default=None, metavar="RUN_DIR|MAP.ply",
                    help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
-    p.add_argument("--engine", default="live", choices=["live", "sequential"],
-                   help="live (default): tracking runs ahead while a mapper thread maps; sequential: "
-                   "track, then map, frame by frame")
     p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
 
 
@@ -85,32 +78,16 @@ def main(args) -> int:
             opened / "export" if opened.is_dir() else opened.parent / f"{opened.stem}_export")
         what = f"browsing {opened} ({snapshot.num_gaussians:,} Gaussians)"
     else:
-        from app.commands.run import default_config_name
         from app.worker import SlamWorker
-        from splat_core.config import load_config
-        from splat_core.pipeline import Pipeline, config_summary, open_input, resolve_device
 
         out = Path(args.out) if args.out else Path("runs") / datetime.now().strftime("viewer-%Y%m%d-%H%M%S")
-        if out.exists() and not out.is_dir():
-            raise InputError(f"{out}: --out must be a folder")
-        if (out / "checkpoint").exists():
-            raise InputError(f"{out}: already holds a run; choose another --out")
-        device = resolve_device(args.device)
-        config = load_config(args.config or default_config_name(device))
-        live = bool(args.input and args.input.startswith("nerfcapture://"))
-        options = dict(capture_dir=out / "capture", idle_timeout=None) if live else {}  # until Ctrl-C / --max-frames
-        src = open_input(args.input, format=args.format, **options)
-        if live:
-            from splat_core.io.nerfcapture_stream import waiting_message
-            print(waiting_message(), file=sys.stderr, flush=True)
-            stream = src
-        pipe = Pipeline(src, config, out, device=args.device, max_frames=args.max_frames, stride=args.stride,
-                        engine=args.engine)
-        worker = SlamWorker(pipe, start_paused=args.paused)
+        run = setup_from_args(args, out=out, idle_timeout=None)   # a stream runs until Ctrl-C / --max-frames
+        if run.live:
+            print(run.waiting_message(), file=sys.stderr, flush=True)
+            stream = run.source
+        worker = SlamWorker(run.start(), start_paused=args.paused)
         source, export_dir = worker, out
-        what = (f"{src.describe()}; config {config_summary(config)}; {args.engine} engine; device {pipe.device}; "
-                f"{pipe.total or 'live'} frames at {pipe.intrinsics.width}x{pipe.intrinsics.height} -> {out}"
-                + "".join(f"; note: {n}" for n in pipe.notes))
+        what = "\n".join(run.lines())
 
     server = start_server(args.host, args.port)
     app = build_viewer(server, source, export_dir=export_dir)

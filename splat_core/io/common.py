@@ -128,6 +128,11 @@ class IndexedCapture(FrameSource):
         return out
 
     def __getitem__(self, i: int) -> Frame:
+        return self.frame_at_size(i, *self.size)
+
+    def frame_at_size(self, i: int, width: int, height: int) -> Frame:
+        """Frame i at width x height, colour and depth each resampled from the grid it is stored on
+        (so depth is never upsampled twice)."""
         n = len(self)
         if not isinstance(i, (int, np.integer)):
             raise TypeError(f"frame index must be an integer, got {type(i).__name__}")
@@ -151,7 +156,9 @@ class IndexedCapture(FrameSource):
                 raise InputError(f"{self._name(i, 'confidence')}: confidence map is {conf.shape[1]}x{conf.shape[0]}, "
                                  f"expected the depth size {depth.shape[1]}x{depth.shape[0]}")
             depth = np.where(conf >= self.min_confidence, depth, np.float32(0)).astype(np.float32)
-        intr = self._at_working_size(self._frame_color_intr(i))
+        intr = self._frame_color_intr(i)
+        if (width, height) != (intr.width, intr.height):
+            intr = intr.scaled(width, height)
         if color.shape[:2] != (intr.height, intr.width):
             color = np.clip(resize_to(color, intr, False), 0.0, 1.0)
         depth = resize_to(depth, intr, True)

@@ -9,7 +9,7 @@ from typing import Iterator
 import numpy as np
 
 from ..camera import Intrinsics
-from ..frame import Frame
+from ..frame import Frame, resize_frame
 
 
 class FrameSource(ABC):
@@ -48,6 +48,11 @@ class FrameSource(ABC):
     def reference_c2w(self) -> np.ndarray | None:
         """T x 4 x 4 reference poses (NaN rows where a frame has none), or None."""
         return None
+
+    def frame_at_size(self, i: int, width: int, height: int) -> Frame:
+        """Frame i at width x height: colour by area averaging, depth by nearest neighbour.
+        Readers whose colour and depth grids differ resample each from its own grid."""
+        return resize_frame(self[i], width, height)
 
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):

@@ -18,7 +18,7 @@ def heldout_metrics(gaussians: Gaussians, views: Iterable[View], intr: Intrinsic
     psnrs, ssims, depth_l1s = [], [], []
     for view in views:
         with torch.no_grad():
-            out = renderer.render(gaussians, intr, view.w2c)
+            out = renderer.render_visible(gaussians, intr, view.w2c)
         psnrs.append(M.psnr(out.color, view.color))
         ssims.append(M.ssim_metric(out.color, view.color))
         depth_l1s.append(M.depth_l1(out.depth, view.depth))

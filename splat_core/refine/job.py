@@ -46,11 +46,11 @@ class RefineJob:
         self.resolution = resolution
         config = self.run.config
         self.renderer = Renderer(near=config.near_plane)
-        self.refiner = Refiner(self.run.slam.map, views, self.intrinsics, config.mapping, settings,
-                               self.run.slam.scene_radius, self.renderer)
+        self.refiner = Refiner(self.run.map, views, self.intrinsics, config.mapping, settings,
+                               self.run.scene_radius, self.renderer)
         self.settings = self.refiner.settings
         self.checkpoint_every = checkpoint_every
-        self.gaussians_before = len(self.run.slam.map)
+        self.gaussians_before = len(self.run.map)
         self.before: dict | None = None     # held-out metrics of the SLAM map
         self.seconds = 0.0                  # optimisation time (iterations only)
         self.resumed_from = 0

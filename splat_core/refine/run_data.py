@@ -2,7 +2,8 @@
 
 A run folder (pipeline.py) holds config.yaml, map.ply, trajectory.txt, metrics.json and
 checkpoint/; the checkpoint has the map's raw parameters, the keyframes (at the working
-resolution, with their frozen poses), every frame's estimated pose, and the input's path.
+resolution, with their frozen poses; read with keyframes.read_keyframes), every frame's estimated
+pose, and the input's path.
 Training views are the keyframes; held-out views are the processed frames that are not keyframes
 (SplaTAM's novel-view protocol), at their estimated poses. At the capture's resolution both are
 re-read from the capture (keyframes are only stored at the working resolution).
@@ -13,6 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 import yaml
 
@@ -22,7 +24,8 @@ from ..errors import InputError
 from ..io import checkpoint
 from ..io.source import FrameSource
 from ..mapping import View
-from ..slam import SplaTAM
+from ..gaussians import GaussianMap
+from ..keyframes import Keyframe, read_keyframes
 
 RESOLUTIONS = ("capture", "working")
 
@@ -31,18 +34,26 @@ RESOLUTIONS = ("capture", "working")
 class RunData:
     run_dir: Path
     config: Config
-    slam: SplaTAM              # the run's state as checkpointed: map, keyframes, w2cs, scene_radius
+    intrinsics: Intrinsics     # the working resolution
+    map: GaussianMap           # as checkpointed at the end of the run
+    w2cs: list[np.ndarray]     # every processed frame's estimated pose
+    scene_radius: float
+    keyframes: list[Keyframe]  # frozen poses, images at the working resolution
     records: list[dict]        # per processed frame: source_index, ...
     capture: dict | None       # the input as recorded: path, format (None: not recorded)
 
     @property
     def keyframe_indices(self) -> list[int]:
-        return [kf.frame_index for kf in self.slam.keyframes]
+        return [kf.frame_index for kf in self.keyframes]
 
     @property
     def heldout_indices(self) -> list[int]:
         keyframes = set(self.keyframe_indices)
         return [k for k in range(len(self.records)) if k not in keyframes]
+
+    def view(self, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray) -> View:
+        t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=self.map.dtype, device=self.map.device)  # noqa: E731
+        return View(t(color), t(depth), w2c)
 
 
 def load_run_data(run_dir, device="cpu") -> RunData:
@@ -65,11 +76,12 @@ def load_run_data(run_dir, device="cpu") -> RunData:
         raise InputError(f"{run_dir}: the run is unfinished ({meta['frames_done']} of {meta['total']} frames); "
                          "finish it with splatam run --resume first")
     intr = Intrinsics(**{k: meta["intrinsics"][k] for k in ("fx", "fy", "cx", "cy", "width", "height")})
-    slam = SplaTAM(config, intr, device=device)
-    slam.load_state_arrays(ckpt.arrays)
-    if len(slam.keyframes) == 0:
+    keyframes = read_keyframes(run_dir / "checkpoint", ckpt.arrays, intr)
+    if not keyframes:
         raise InputError(f"{run_dir / 'checkpoint'}: the run has no keyframes")
-    return RunData(run_dir, config, slam, list(meta["records"]), meta.get("input"))
+    gmap = GaussianMap.from_numpy(ckpt.gaussians(), device=device)
+    return RunData(run_dir, config, intr, gmap, [w for w in np.asarray(ckpt.arrays["w2cs"], np.float64)],
+                   float(ckpt.arrays["scene_radius"]), keyframes, list(meta["records"]), meta.get("input"))
 
 
 def open_run_capture(run: RunData, override=None) -> FrameSource | None:
@@ -94,8 +106,7 @@ def frame_views(run: RunData, source: FrameSource, intr: Intrinsics, indices: li
     views = []
     for k in indices:
         frame = prepare_frame(source, int(run.records[k]["source_index"]), intr, run.config.max_depth)
-        t = lambda a: torch.as_tensor(a, dtype=run.slam.dtype, device=run.slam.device)  # noqa: E731
-        views.append(View(t(frame.color), t(frame.depth), run.slam.w2cs[k]))
+        views.append(run.view(frame.color, frame.depth, run.w2cs[k]))
     return views
 
 
@@ -104,7 +115,7 @@ def training_views(run: RunData, source: FrameSource | None, resolution: str) ->
     if resolution not in RESOLUTIONS:
         raise InputError(f"--resolution {resolution}: expected capture or working")
     if resolution == "working":
-        return run.slam.intrinsics, [run.slam.keyframe_view(kf) for kf in run.slam.keyframes]
+        return run.intrinsics, [run.view(kf.color, kf.depth, kf.w2c) for kf in run.keyframes]
     if source is None:
         raise InputError(f"{run.run_dir}: the run does not record its capture; pass --input CAPTURE "
                          "(or --resolution working)")

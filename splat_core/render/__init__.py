@@ -26,8 +26,8 @@ import numpy as np
 import torch
 
 from ..camera import Intrinsics
-from ..gaussians import GaussianMap
-from .project import project_gaussians
+from ..gaussians import PARAM_NAMES, GaussianMap, Gaussians
+from .project import frustum_mask, project_gaussians
 from .reference import rasterize_reference
 
 BACKENDS = ("auto", "cpu", "cuda", "reference")
@@ -130,3 +130,16 @@ class Renderer:
     def pixels(self, gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=0.0) -> Render:
         return render_pixels(gaussians, intrinsics, w2c, pixels, background=background, backend=self.backend,
                              near=self.near)
+
+    def visible(self, gaussians, intrinsics: Intrinsics, w2c, margin: float = 0.0) -> Gaussians:
+        """The Gaussians whose footprint may reach the image at w2c (`margin`: a fraction of the
+        image added on each side). Rendering those gives the same image as rendering all of them,
+        so a render that needs no gradient to the whole map costs what is in view, not the map."""
+        g = gaussians.tensors(detach=True) if isinstance(gaussians, GaussianMap) else gaussians
+        w2c = w2c.detach().cpu().numpy() if torch.is_tensor(w2c) else np.asarray(w2c)
+        keep = frustum_mask(g.means, g.log_scales, intrinsics, w2c, self.near, margin=margin)
+        return Gaussians(*(getattr(g, name)[keep] for name in PARAM_NAMES))
+
+    def render_visible(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0) -> Render:
+        """`render` of what is in view (no gradient to the map: for previews, densification, evaluation)."""
+        return self.render(self.visible(gaussians, intrinsics, w2c), intrinsics, w2c, background=background)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from ..camera import Intrinsics, quat_to_rotmat
@@ -98,3 +99,23 @@ def project_gaussians(g: Gaussians, intr: Intrinsics, w2c: torch.Tensor, *,
         radii=radii,
     )
 
+
+def frustum_mask(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics, w2c: np.ndarray,
+                 near: float, margin: float = 0.1) -> torch.Tensor:
+    """Gaussians whose 3.5-sigma footprint may touch the image (plus a margin); conservative."""
+    with torch.no_grad():
+        R = torch.as_tensor(w2c[:3, :3], dtype=means.dtype, device=means.device)
+        t = torch.as_tensor(w2c[:3, 3], dtype=means.dtype, device=means.device)
+        p = means @ R.T + t
+        z = p[:, 2]
+        zs = torch.clamp(z, min=near)
+        extent = 3.5 * torch.exp(log_scales).amax(dim=1)
+        u = intr.fx * p[:, 0] / zs + intr.cx
+        v = intr.fy * p[:, 1] / zs + intr.cy
+        # Off-axis Gaussians project larger (perspective stretch), by at most this factor.
+        stretch = torch.sqrt(1 + (p[:, 0] / zs) ** 2 + (p[:, 1] / zs) ** 2)
+        r_px = extent * max(intr.fx, intr.fy) / zs * stretch + 2.0
+        mx, my = margin * intr.width, margin * intr.height
+        inside = ((u + r_px > -mx) & (u - r_px < intr.width + mx)
+                  & (v + r_px > -my) & (v - r_px < intr.height + my))
+        return (z + extent > near) & inside

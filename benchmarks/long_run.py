@@ -1,0 +1,150 @@
+"""Long runs: memory per frame on a capture that revisits one room, and per-frame time on one that
+keeps exploring; prints JSON (one object per run).
+
+    python benchmarks/long_run.py memory --frames 1000 --size 320x240
+    python benchmarks/long_run.py memory --frames 1000 --size 640x480
+    python benchmarks/long_run.py memory --frames 400 --code OLD_CHECKOUT     # the same run on other code
+    python benchmarks/long_run.py time --frames 1000 --size 320x240 --preset cpu
+
+memory: the synthetic room (synthetic.py) at twice the hand-held speed, so the camera orbits the
+room more than once, with the reference poses given (tracking.use_reference_poses) and short
+mapping (1 iteration a frame), as the issue that asked for it measured. RSS is read from
+/proc/self/status after every frame; the least-squares slope of RSS over frames 100..N is
+`slope_mb_per_frame`; `growth_mb_per_frame` compares the median RSS of
+frames 100-150 with that of the last 50 (single iterations' spikes cancel out); `map_mb` is what
+the Gaussians themselves take.
+
+time: the corridor (synthetic_corridor.py), full SLAM with the given preset, run folder and
+checkpoints as `splatam run` writes them; the median s/frame (records' wall_seconds) of frames
+[N/10, N/5) against [0.9 N, N) (100-200 and 900-1000 for N = 1000) and their ratio.
+
+Each run is a child process of this script (so RSS is per run); `--code DIR` puts another
+checkout first on its PYTHONPATH, to measure the code before a change in the same session.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from slam import machine  # noqa: E402
+
+
+def rss_mb() -> float:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def slope(xs, ys) -> float:
+    mx, my = statistics.fmean(xs), statistics.fmean(ys)
+    return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs)
+
+
+def growth(rss: list[float], first: int, span: int = 50) -> float:
+    """RSS growth per frame from frame `first` to the end, between medians of `span` frames (robust
+    to the spikes of single iterations)."""
+    span = min(span, (len(rss) - first) // 2)
+    a, b = statistics.median(rss[first:first + span]), statistics.median(rss[-span:])
+    return (b - a) / (len(rss) - span - first)
+
+
+def child_memory(args) -> dict:
+    from splat_core.config import load_config
+    from splat_core.pipeline import Pipeline
+    from splat_core.synthetic import SyntheticSource
+
+    w, h = args.size
+    cfg = load_config(args.preset, overrides={
+        "resolution": [w, h], "tracking": {"use_reference_poses": True},
+        "mapping": {"iterations": 1, "first_frame_iterations": 20}, "eval_every": 10**9})
+    with tempfile.TemporaryDirectory() as tmp:
+        pipe = Pipeline(SyntheticSource(n_frames=args.frames, width=w, height=h, speed=2.0), cfg, Path(tmp) / "run")
+        rss, gaussians = [], []
+        start = time.perf_counter()
+        while pipe.step() is not None:
+            rss.append(rss_mb())
+            gaussians.append(len(pipe.slam.map))
+        seconds = time.perf_counter() - start
+        store = pipe.slam.keyframes
+        resident = store.resident_bytes() / 2**20 if hasattr(store, "resident_bytes") else None
+    first = min(100, len(rss) // 2)
+    bytes_per_gaussian = 4 * 14 + 8       # means, colours, quaternion, opacity, 3 log-scales; birth frame
+    return dict(mode="memory", frames=len(rss), size=f"{w}x{h}", code=args.code or str(ROOT),
+                rss_mb_at={str(first): round(rss[first - 1], 1), str(len(rss)): round(rss[-1], 1)},
+                growth_mb_per_frame=round(growth(rss, first), 4),
+                slope_mb_per_frame=round(slope(range(first, len(rss)), rss[first:]), 4),
+                rss_mb_every_50=[round(v, 1) for v in rss[49::50]],
+                peak_rss_mb=round(max(rss), 1),
+                gaussians_at={str(first): gaussians[first - 1], str(len(rss)): gaussians[-1]},
+                map_mb_at_end=round(gaussians[-1] * bytes_per_gaussian / 2**20, 1),
+                keyframes=len(store), keyframes_resident_mb=None if resident is None else round(resident, 1),
+                seconds_per_frame=round(seconds / len(rss), 3), machine=machine())
+
+
+def child_time(args) -> dict:
+    from splat_core.config import load_config
+    from splat_core.pipeline import Pipeline
+    from splat_core.synthetic_corridor import CorridorSource
+
+    w, h = args.size
+    cfg = load_config(args.preset, overrides={"resolution": [w, h], "eval_every": 10**9})
+    n = args.frames
+    with tempfile.TemporaryDirectory() as tmp:
+        pipe = Pipeline(CorridorSource(n_frames=n, width=w, height=h), cfg, Path(tmp) / "run", engine=args.engine)
+        while pipe.step() is not None:
+            pass
+        metrics = pipe.finish()
+    records = metrics["per_frame"]
+
+    def window(lo, hi):
+        part = records[lo:hi]
+        return dict(frames=[lo, hi], s_per_frame=round(statistics.median(r["wall_seconds"] for r in part), 3),
+                    tracking_s=round(statistics.median(r["tracking_seconds"] for r in part), 3),
+                    mapping_s=round(statistics.median(r["mapping_seconds"] for r in part), 3),
+                    gaussians=part[-1]["num_gaussians"])
+    early, late = window(n // 10, n // 5), window(n - n // 10, n)
+    return dict(mode="time", frames=n, size=f"{w}x{h}", preset=args.preset, engine=args.engine,
+                code=args.code or str(ROOT), early=early, late=late,
+                ratio_late_to_early=round(late["s_per_frame"] / early["s_per_frame"], 3),
+                ate_rmse_cm=metrics["ate_rmse_cm"], machine=machine())
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("mode", choices=["memory", "time"])
+    p.add_argument("--frames", type=int, default=1000)
+    p.add_argument("--size", default="320x240", type=lambda s: tuple(int(v) for v in s.lower().split("x")))
+    p.add_argument("--preset", default="cpu")
+    p.add_argument("--engine", default="sequential", choices=["sequential", "live"])
+    p.add_argument("--code", default=None, help="another checkout to import splat_core from")
+    p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = p.parse_args(argv)
+    if args.child:
+        print(json.dumps((child_memory if args.mode == "memory" else child_time)(args)))
+        return 0
+    env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
+    code = Path(args.code).resolve() if args.code else ROOT
+    env["PYTHONPATH"] = os.pathsep.join([str(code), env.get("PYTHONPATH", "")])
+    argv = [a for a in (argv if argv is not None else sys.argv[1:])]
+    proc = subprocess.run([sys.executable, __file__, *argv, "--child"], cwd=code, env=env,
+                          capture_output=True, text=True)
+    if proc.returncode != 0:
+        print(json.dumps({"mode": args.mode, "error": proc.stderr.strip().splitlines()[-1:]}))
+        return 1
+    print(proc.stdout.strip().splitlines()[-1])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
