@@ -113,7 +113,8 @@ def load_run(path) -> MapSnapshot:
         version=1, state="browse", near_plane=near_plane_of(path), frame_index=len(c2w) - 1, total_frames=len(c2w), map_version=1,
         gaussians=freeze_gaussians(gaussians), keyframes=keyframes, intrinsics=intrinsics,
         timestamps=frozen(timestamps), estimated_c2w=frozen(c2w), history={},
-        ate_cm=float(ate) if ate is not None else None, message=str(path), out_dir=None)
+        ate_cm=float(ate) if ate is not None else None, message=str(path),
+        out_dir=path if path.is_dir() else None)
 
 
 def _checkpoint_keyframes(checkpoint_dir: Path, arrays: dict, intrinsics: Intrinsics | None) -> tuple:

@@ -24,6 +24,7 @@ SUBCOMMANDS = {
     "convert": ("app.commands.convert", "convert any supported capture to the TUM RGB-D layout"),
     "export": ("app.commands.export", "export a run's map as .ply, .splat, .spz, compressed .ply or .html"),
     "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
+    "refine": ("app.commands.refine", "refine a finished run's map over all keyframes at the capture's resolution"),
 }
 
 

@@ -32,6 +32,7 @@ from .images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from .snapshot import MapSnapshot
 from .viewer_panels import Panels
+from .viewer_refine import RefinePanel
 from .viewer_scene import CameraLayer, MapLayer, wxyz_position
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,8 @@ class ViewerApp:
         self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls)
+        self.refine_panel = RefinePanel(server, source, self.wake)
+        self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
         self.renderer = RenderService()
         self.renderer.start()
 
@@ -345,6 +348,7 @@ class ViewerApp:
     def close(self) -> None:
         self._stop.set()
         self._wake.set()
+        self.refine_panel.close()
         self.renderer.stop()
         self._thread.join(timeout=5)
         self.renderer.join(timeout=30)

@@ -79,6 +79,28 @@ def check_frame(frame: Frame, where: str) -> None:
         raise InputError(f"{where}: no valid depth in this frame")
 
 
+def prepare_frame(source: FrameSource, i: int, intrinsics: Intrinsics, max_depth: float | None,
+                  raw: Frame | None = None) -> Frame:
+    """Capture frame i (or `raw`, that frame as received) at `intrinsics`' resolution, depth cut at
+    max_depth; InputError naming the file when it is unusable."""
+    frame = source.frame_at_size(i, intrinsics.width, intrinsics.height) if raw is None else raw
+    name = source._name(i, "depth") if hasattr(source, "_name") else f"{getattr(source, 'path', 'input')} frame {i}"
+    check_frame(frame, name)
+    frame = resize_frame(frame, intrinsics.width, intrinsics.height)
+    if max_depth:
+        frame.depth = np.where(frame.depth <= max_depth, frame.depth, 0).astype(np.float32)
+    return frame
+
+
+def input_record(source: FrameSource) -> dict | None:
+    """Where a run's frames came from, so `splatam refine` can re-read them (a live stream: the capture
+    folder it was recorded to, whose format is detected); None for the synthetic scene."""
+    if getattr(source, "path", None) is None:
+        return None
+    live = getattr(source, "live", False)
+    return dict(path=str(Path(source.path).resolve()), format=None if live else source.format_name)
+
+
 class SlamRun(Protocol):
     """What the app (the worker thread, `splatam run`) may use of a run: nothing else.
 
@@ -174,15 +196,7 @@ class Pipeline:
     def frame_at(self, i: int, raw: Frame | None = None) -> Frame:
         """Capture frame i (or `raw`, that frame as received) at the working resolution, depth cut at
         max_depth; InputError naming the file when it is unusable."""
-        w, h = self.intrinsics.width, self.intrinsics.height
-        frame = self.source.frame_at_size(i, w, h) if raw is None else raw
-        name = self.source._name(i, "depth") if hasattr(self.source, "_name") else \
-            f"{getattr(self.source, 'path', 'input')} frame {i}"
-        check_frame(frame, name)
-        frame = resize_frame(frame, w, h)
-        if self.config.max_depth:
-            frame.depth = np.where(frame.depth <= self.config.max_depth, frame.depth, 0).astype(np.float32)
-        return frame
+        return prepare_frame(self.source, i, self.intrinsics, self.config.max_depth, raw)
 
     def _next_frame(self) -> Frame | None:
         """The next usable frame; bad ones are skipped with a one-line warning (None at the end).
@@ -288,7 +302,7 @@ class Pipeline:
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
-                    elapsed_seconds=time.perf_counter() - self.started)
+                    input=input_record(self.source), elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
         if self.live_engine is not None:
@@ -352,7 +366,7 @@ class Pipeline:
             peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
             device=str(self.device), machine=platform.processor() or platform.machine(),
             resolution=[self.intrinsics.width, self.intrinsics.height], config=self.config.name,
-            intrinsics=self.intrinsics.to_dict(),
+            intrinsics=self.intrinsics.to_dict(), input=input_record(self.source),
         )
         refs = self.reference_c2w()
         if refs is not None:

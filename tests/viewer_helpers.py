@@ -122,3 +122,11 @@ def wait_until(predicate, timeout: float = 30.0, interval: float = 0.1, what: st
             return value
         time.sleep(interval)
     raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def click(button) -> None:
+    """Press a viser GUI button from a test: its on_click callbacks with an event from no client."""
+    from viser import GuiEvent
+
+    for callback in list(button._impl.update_cb):
+        callback(GuiEvent(client=None, client_id=None, target=button))

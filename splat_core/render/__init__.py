@@ -53,7 +53,10 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 
 
 def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: str = "auto",
-           near: float = 0.01, eps2d: float = 0.3) -> Render:
+           near: float = 0.01, eps2d: float = 0.3, screen: list | None = None) -> Render:
+    """`screen`: when a list is given, (means2d, radii) are appended to it: the screen-space centres
+    in pixels (their `.grad` is kept by backward; gsplat's are 1 x N x 2) and footprint radii (0 =
+    not drawn). Refinement's densification (3DGS) reads the view-space positional gradient there."""
     g = gaussians.tensors() if isinstance(gaussians, GaussianMap) else gaussians
     dtype, device = g.means.dtype, g.means.device
     if not torch.is_tensor(w2c):
@@ -64,12 +67,15 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
     which = resolve_backend(backend, device)
     if which == "cuda":
         from .cuda import render_gsplat
-        color, depth, alpha = render_gsplat(g, intrinsics, w2c, near=near, eps2d=eps2d)
+        color, depth, alpha = render_gsplat(g, intrinsics, w2c, near=near, eps2d=eps2d, screen=screen)
     else:
         if len(g) == 0:
             z = torch.zeros(H, W, dtype=dtype, device=device)
             return Render(z[..., None].expand(H, W, 3) + bg, z, z)
         p = project_gaussians(g, intrinsics, w2c, near=near, eps2d=eps2d)
+        if screen is not None and p.means2d.requires_grad:
+            p.means2d.retain_grad()
+            screen.append((p.means2d, p.radii))
         features = torch.cat([g.colors, p.depths[:, None]], dim=1)
         if which == "cpu":
             from .cpu import rasterize_cpu as rasterize
@@ -117,8 +123,9 @@ class Renderer:
     near: float = 0.01
     backend: str = "auto"
 
-    def render(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0) -> Render:
-        return render(gaussians, intrinsics, w2c, background=background, backend=self.backend, near=self.near)
+    def render(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, screen: list | None = None) -> Render:
+        return render(gaussians, intrinsics, w2c, background=background, backend=self.backend, near=self.near,
+                      screen=screen)
 
     def pixels(self, gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=0.0) -> Render:
         return render_pixels(gaussians, intrinsics, w2c, pixels, background=background, backend=self.backend,

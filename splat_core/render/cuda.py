@@ -60,7 +60,8 @@ def unavailable_reason() -> str | None:
     return None
 
 
-def render_gsplat(g, intr: Intrinsics, w2c: torch.Tensor, near: float = 0.01, eps2d: float = 0.3):
+def render_gsplat(g, intr: Intrinsics, w2c: torch.Tensor, near: float = 0.01, eps2d: float = 0.3,
+                  screen: list | None = None):
     """Render with gsplat. Returns (color H x W x 3, depth H x W, alpha H x W), no background.
 
     g: `Gaussians` (means N x 3, colors N x 3, rotations N x 4 wxyz, logit_opacities N,
@@ -85,5 +86,8 @@ def render_gsplat(g, intr: Intrinsics, w2c: torch.Tensor, near: float = 0.01, ep
         viewmats=w2c[None], Ks=K[None], width=intr.width, height=intr.height,
         near_plane=near, eps2d=eps2d, render_mode="RGB+D", packed=False,
     )
+    if screen is not None and _meta["means2d"].requires_grad:     # see render(): 1 x N x 2, 1 x N (x 2)
+        _meta["means2d"].retain_grad()
+        screen.append((_meta["means2d"], _meta["radii"]))
     out = renders[0]                        # H x W x 4 (RGB + accumulated depth)
     return out[..., :3], out[..., 3], alphas[0, ..., 0]
