@@ -31,8 +31,11 @@ from splat_core.metrics import psnr
 from .images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from .snapshot import MapSnapshot
+from .viewer_export import ExportPanel
+from .viewer_measure import MeasureTool
 from .viewer_panels import Panels
 from .viewer_scene import CameraLayer, MapLayer, wxyz_position
+from .viewer_video import CameraPathPanel
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +74,10 @@ class ViewerApp:
         self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls)
+        self.export_panel = ExportPanel(server, source, export_dir=self.export_dir, folder=self.panels.export_folder)
+        self.video_panel = CameraPathPanel(server, source.latest, export_dir=self.export_dir,
+                                           render_backend=render_backend)
+        self.measure = MeasureTool(server, source.latest, render_backend)
         self.renderer = RenderService()
         self.renderer.start()
 
@@ -343,6 +350,7 @@ class ViewerApp:
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
+        self.video_panel.cancel()
         self._stop.set()
         self._wake.set()
         self.renderer.stop()
