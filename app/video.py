@@ -64,7 +64,7 @@ def render_frames(arrays: dict, intrinsics, c2ws, *, mode: str = "color", near: 
             raise Cancelled("video render cancelled")
         w2c = torch.as_tensor(invert_pose(np.asarray(c2w, np.float64)), dtype=torch.float32, device=device)
         with torch.no_grad():
-            r = renderer.render(g, intrinsics, w2c, background=background)
+            r = renderer.render_visible(g, intrinsics, w2c, background=background)   # same image, culled first
         if mode == "color":
             yield to_uint8(r.color.cpu().numpy())
         elif mode == "depth":

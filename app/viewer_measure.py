@@ -40,7 +40,7 @@ def pick_point(gaussians, c2w: np.ndarray, intrinsics: Intrinsics, ray_direction
         return None
     w2c = torch.as_tensor(invert_pose(c2w), dtype=torch.float32)
     with torch.no_grad():
-        out = renderer.pixels(gaussians, intrinsics, w2c, np.array([[px, py]]))
+        out = renderer.pixels(renderer.visible(gaussians, intrinsics, w2c), intrinsics, w2c, np.array([[px, py]]))
     alpha = float(out.alpha[0])
     if alpha < min_alpha:
         return None
