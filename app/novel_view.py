@@ -105,8 +105,7 @@ def browser_camera(client, max_width: int) -> tuple[Intrinsics, np.ndarray]:
     W0, H0 = max(1, int(cam.image_width)), max(1, int(cam.image_height))
     W = min(W0, max_width)
     H = max(1, int(round(H0 * W / W0)))
-    fy = (H / 2.0) / np.tan(float(cam.fov) / 2.0)
-    intr = Intrinsics(fy, fy, (W - 1) / 2.0, (H - 1) / 2.0, W, H)
+    intr = Intrinsics.from_fov(float(cam.fov), W, H)
     c2w = pose_matrix(quat_to_rotmat_np(np.asarray(cam.wxyz)), np.asarray(cam.position))
     return intr, invert_pose(c2w)
 

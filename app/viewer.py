@@ -31,9 +31,12 @@ from splat_core.metrics import psnr
 from .images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from .snapshot import MapSnapshot
+from .viewer_export import ExportPanel
+from .viewer_measure import MeasureTool
 from .viewer_panels import Panels
 from .viewer_refine import RefinePanel
 from .viewer_scene import CameraLayer, MapLayer, wxyz_position
+from .viewer_video import CameraPathPanel
 
 log = logging.getLogger(__name__)
 
@@ -74,6 +77,10 @@ class ViewerApp:
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls)
         self.refine_panel = RefinePanel(server, source, self.wake)
         self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
+        self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder)
+        self.video_panel = CameraPathPanel(server, self.source.latest, export_dir=self.export_dir,
+                                           render_backend=render_backend)
+        self.measure = MeasureTool(server, self.source.latest, render_backend)
         self.renderer = RenderService()
         self.renderer.start()
 
@@ -346,6 +353,7 @@ class ViewerApp:
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
+        self.video_panel.cancel()
         self._stop.set()
         self._wake.set()
         self.refine_panel.close()

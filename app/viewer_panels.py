@@ -101,7 +101,7 @@ class Panels:
                     data=(np.zeros(1), np.zeros(1)),
                     series=({"label": "frame"}, {"label": title, "stroke": colour, "width": 2}),
                     title=title, aspect=2.5)
-        with gui.add_folder("Export", order=4):
+        with gui.add_folder("Export", order=4) as self.export_folder:
             self.export_ply_button = gui.add_button("Download map.ply", icon=viser.Icon.DOWNLOAD)
             self.export_traj_button = gui.add_button("Download trajectory (TUM)", icon=viser.Icon.ROUTE)
             self.export_info = gui.add_markdown("Exports are also written into the run folder.")

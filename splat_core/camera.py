@@ -54,6 +54,13 @@ class Intrinsics:
             return self
         return self.scaled(max(1, round(self.width * s)), max(1, round(self.height * s)))
 
+    @classmethod
+    def from_fov(cls, fov_y: float, width: int, height: int) -> "Intrinsics":
+        """Square pixels, centred principal point, vertical field of view fov_y (radians; a
+        browser camera's): the inverse of `fov_y`."""
+        fy = (height / 2.0) / np.tan(fov_y / 2.0)
+        return cls(fy, fy, (width - 1) / 2.0, (height - 1) / 2.0, int(width), int(height))
+
     @property
     def K(self) -> np.ndarray:
         return np.array([[self.fx, 0, self.cx], [0, self.fy, self.cy], [0, 0, 1]], dtype=np.float64)

@@ -1,4 +1,9 @@
-"""`splatam render`: images of a map along a camera trajectory (TUM, c2w), for figures and videos."""
+"""`splatam render`: images of a map along a camera trajectory (TUM, c2w), or an MP4 video along a
+smooth path through the run's keyframes (or a TUM file's poses), for figures and fly-throughs.
+
+    splatam render RUN_DIR --trajectory FILE --out DIR           # one PNG per pose
+    splatam render RUN_DIR --video OUT.mp4 [--path keyframes|FILE] [--fps N] [--size WxH] [--seconds S]
+"""
 
 from __future__ import annotations
 
@@ -12,8 +17,16 @@ from splat_core.errors import InputError
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("map", metavar="RUN_DIR|MAP.ply", help="run folder (map.ply inside) or a 3DGS .ply")
-    p.add_argument("--trajectory", required=True, help="TUM trajectory (t tx ty tz qx qy qz qw, camera-to-world)")
-    p.add_argument("--out", required=True, help="folder for the images (000000.png, ...)")
+    p.add_argument("--trajectory", default=None, help="TUM trajectory (t tx ty tz qx qy qz qw, camera-to-world): "
+                   "render one image per pose into --out")
+    p.add_argument("--out", default=None, help="folder for the images (000000.png, ...)")
+    p.add_argument("--video", default=None, metavar="OUT.mp4", help="write an H.264 video along a smooth camera path")
+    p.add_argument("--path", default="keyframes", metavar="keyframes|FILE",
+                   help="video path through the run's keyframe poses (default) or a TUM file's poses")
+    p.add_argument("--fps", type=float, default=30.0, help="video frames per second (default 30)")
+    p.add_argument("--size", default=None, metavar="WxH", help="video size, even numbers (default: the run's)")
+    p.add_argument("--seconds", type=float, default=None,
+                   help="video length (default: the poses' time span, else 2 s between poses)")
     p.add_argument("--mode", choices=["color", "depth", "silhouette"], default="color")
     p.add_argument("--width", type=int, default=None, help="image width (default: the run's, else 640)")
     p.add_argument("--height", type=int, default=None, help="image height (default: the run's, else 480)")
@@ -43,19 +56,58 @@ def resolve_intrinsics(args, run: Path):
     return Intrinsics(float(fx), float(fy), float(cx), float(cy), int(width), int(height))
 
 
+def path_poses(run: Path, path: str) -> tuple[np.ndarray, np.ndarray]:
+    """(timestamps, c2w poses) the video path goes through: the run's keyframes or a TUM file's poses."""
+    from splat_core.io.trajectory import read_tum_trajectory
+
+    if path != "keyframes":
+        stamps, c2ws = read_tum_trajectory(path)
+        if len(c2ws) == 0:
+            raise InputError(f"{path}: no poses")
+        return stamps, c2ws
+    from app.browse import load_run
+
+    snap = load_run(run)
+    if not snap.keyframes:
+        raise InputError(f"{run}: no keyframes (a run folder with checkpoint/ has them); "
+                         f"pass --path TRAJECTORY.txt")
+    frames = snap.keyframe_frames
+    stamps = snap.timestamps[frames] if len(frames) and frames.max() < len(snap.timestamps) else np.zeros(0)
+    return stamps, np.stack([kf.c2w for kf in snap.keyframes])
+
+
+def video_length(stamps: np.ndarray, n_poses: int, seconds: float | None) -> float:
+    """--seconds, else the poses' time span (a real-time fly-through), else 2 s between poses."""
+    if seconds is not None:
+        if seconds <= 0:
+            raise InputError(f"--seconds {seconds}: expected a positive length")
+        return float(seconds)
+    span = float(stamps[-1] - stamps[0]) if len(stamps) == n_poses and n_poses > 1 else 0.0
+    return span if span > 0 else 2.0 * max(n_poses - 1, 1)
+
+
 def main(args) -> int:
-    import cv2
+    if args.video is None and (args.trajectory is None or args.out is None):
+        raise InputError("render: pass --trajectory FILE --out DIR for images, or --video OUT.mp4")
+    run = Path(args.map)
+    if args.video is not None:
+        return render_video(args, run)
+    return render_images(args, run)
+
+
+def _device(backend: str) -> str:
     import torch
+    return "cuda" if backend in ("auto", "cuda") and torch.cuda.is_available() else "cpu"
+
+
+def render_images(args, run: Path) -> int:
+    import cv2
 
     from app.browse import near_plane_of, read_map
-    from app.images import colorize_depth, colorize_silhouette, to_uint8
-    from splat_core.camera import invert_pose
-    from splat_core.gaussians import Gaussians
+    from app.video import render_frames
     from splat_core.io.map_files import map_path_of
     from splat_core.io.trajectory import read_tum_trajectory
-    from splat_core.render import Renderer
 
-    run = Path(args.map)
     arrays = read_map(map_path_of(run))
     _, c2ws = read_tum_trajectory(args.trajectory)
     if len(c2ws) == 0:
@@ -65,27 +117,42 @@ def main(args) -> int:
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {out}: expected a folder")
     out.mkdir(parents=True, exist_ok=True)
-    device = "cuda" if args.backend in ("auto", "cuda") and torch.cuda.is_available() else "cpu"
-    t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
-    g = Gaussians(t(arrays["means"]), t(arrays["colors"]), t(arrays["rotations"]),
-                  t(arrays["logit_opacities"]), t(arrays["log_scales"]))
-    depth_max = args.depth_max
-    renderer = Renderer(near_plane_of(run), args.backend)
-    for i, c2w in enumerate(c2ws):
-        with torch.no_grad():
-            r = renderer.render(g, intr, t(invert_pose(c2w)), background=args.background)
-        if args.mode == "color":
-            img = to_uint8(r.color.cpu().numpy())
-        elif args.mode == "depth":
-            depth = r.depth.cpu().numpy()
-            if depth_max is None:   # one range for the whole path, so a video does not flicker
-                valid = depth[depth > 0]
-                depth_max = float(np.percentile(valid, 99)) if valid.size else 1.0
-            img = colorize_depth(depth, depth_max)
-        else:
-            img = colorize_silhouette(r.alpha.cpu().numpy())
+    frames = render_frames(arrays, intr, c2ws, mode=args.mode, near=near_plane_of(run), backend=args.backend,
+                           background=args.background, depth_max=args.depth_max, device=_device(args.backend))
+    for i, img in enumerate(frames):
         path = out / f"{i:06d}.png"
         if not cv2.imwrite(str(path), img[..., ::-1]):
             raise InputError(f"{path}: could not write the image")
     print(f"rendered {len(c2ws)} {args.mode} images of {intr.width}x{intr.height} into {out}")
+    return 0
+
+
+def render_video(args, run: Path) -> int:
+    import time
+
+    from app.browse import near_plane_of, read_map
+    from app.video import mp4_path, parse_size, render_frames, write_mp4
+    from splat_core.camera_path import CameraPath
+    from splat_core.io.map_files import map_path_of
+
+    out = mp4_path(args.video)
+    if args.fps <= 0:
+        raise InputError(f"--fps {args.fps}: expected a positive rate")
+    if args.size is not None:
+        args.width, args.height = parse_size(args.size)
+    intr = resolve_intrinsics(args, run)
+    if intr.width % 2 or intr.height % 2:   # H.264 needs even sizes: drop the last row / column
+        args.width, args.height = intr.width - intr.width % 2, intr.height - intr.height % 2
+        intr = resolve_intrinsics(args, run)
+    arrays = read_map(map_path_of(run))
+    stamps, poses = path_poses(run, args.path)
+    n = max(1, int(round(video_length(stamps, len(poses), args.seconds) * args.fps)))
+    c2ws = CameraPath(poses).sample(n)
+    frames = render_frames(arrays, intr, c2ws, mode=args.mode, near=near_plane_of(run), backend=args.backend,
+                           background=args.background, depth_max=args.depth_max, device=_device(args.backend))
+    start = time.perf_counter()
+    count = write_mp4(out, frames, fps=args.fps, size=(intr.width, intr.height), total=n, progress=True)
+    seconds = time.perf_counter() - start
+    print(f"wrote {count} {args.mode} frames of {intr.width}x{intr.height} at {args.fps:g} fps through "
+          f"{len(poses)} poses to {out} ({seconds:.1f} s, {count / seconds:.1f} frames/s)")
     return 0
