@@ -19,7 +19,7 @@ ASSETS_DIR = next((d for d in (Path(__file__).resolve().parent / "web_assets",
 
 DEFAULT_COLORS = {
     "estimated": (232, 112, 38), "reference": (40, 170, 90), "keyframe": (60, 110, 230),
-    "selected": (240, 200, 20), "current": (220, 40, 60),
+    "selected": (240, 200, 20), "current": (220, 40, 60), "lost": (255, 0, 255),
 }
 
 

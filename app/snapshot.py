@@ -87,6 +87,12 @@ class MapSnapshot:
     message: str = ""
     out_dir: Path | None = None
     skipped_frames: tuple = ()             # (source index, reason) of bad frames the run skipped
+    lost_frames: tuple = ()                # processed-frame numbers where tracking was lost (pose held, not mapped)
+
+    @property
+    def tracking_lost(self) -> bool:
+        """The newest frame is lost: SLAM is relocalising."""
+        return bool(self.lost_frames) and self.lost_frames[-1] == self.frame_index
 
     @property
     def num_gaussians(self) -> int:

@@ -40,6 +40,14 @@ def status_markdown(snap: MapSnapshot) -> str:
     if snap.skipped_frames:
         index, reason = snap.skipped_frames[-1]
         lines.append(f"⚠ {len(snap.skipped_frames)} bad frame(s) skipped; last: {reason}")
+    if snap.tracking_lost:
+        first = next(k for k in range(len(snap.lost_frames) - 1, -1, -1)
+                     if k == 0 or snap.lost_frames[k - 1] != snap.lost_frames[k] - 1)
+        lines.append(f"⚠ **tracking lost at frame {snap.lost_frames[first]}, relocalising…** "
+                     "(frames are not mapped until it is back)")
+    elif snap.lost_frames:
+        lines.append(f"⚠ tracking was lost on {len(snap.lost_frames)} frame(s) and recovered; last lost: "
+                     f"frame {snap.lost_frames[-1]}")
     if snap.message:
         lines.append(snap.message)
     return "  \n".join(lines)

@@ -239,13 +239,14 @@ class CameraLayer:
                 self._update_trajectory("reference", snap.reference_c2w)
             if len(snap.estimated_c2w) and snap.state != "browse":
                 wxyz, pos = wxyz_position(snap.estimated_c2w[-1])
+                color = self.colors["lost"] if snap.tracking_lost else self.colors["current"]
                 if self._current is None:
                     self._current = self.server.scene.add_camera_frustum(
                         "/camera/current", fov=fov, aspect=aspect, scale=scale * 1.3,
-                        thickness=3.0, thickness_units="screen", color=self.colors["current"],
+                        thickness=3.0, thickness_units="screen", color=color,
                         wxyz=wxyz, position=pos)
                 else:
-                    self._current.wxyz, self._current.position = wxyz, pos
+                    self._current.wxyz, self._current.position, self._current.color = wxyz, pos, color
 
     def _update_trajectory(self, which: str, c2w: np.ndarray) -> None:
         if len(c2w) == self._traj_len[which]:

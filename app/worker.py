@@ -240,5 +240,6 @@ class SlamWorker(threading.Thread):
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,
                 message=message, out_dir=self.out_dir,
                 skipped_frames=tuple((s["source_index"], s["reason"]) for s in pipe.skipped),
+                lost_frames=tuple(int(x["index"]) for x in pipe.lost),
             )
             self._cond.notify_all()

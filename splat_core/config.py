@@ -100,6 +100,22 @@ class LiveConfig:
 
 
 @dataclass
+class LostTrackingConfig:
+    """When a tracked pose is not believed (relocalise.py) and how it is relocalised."""
+    enabled: bool = True
+    loss_factor: float = 5.0              # lost: loss per pixel above this x the median of the recent tracked frames ...
+    loss_history: int = 10                # ... over this many tracked frames
+    min_history: int = 3                  # ... once that many are known
+    min_coverage: float = 0.25            # lost: the map's silhouette covers less than this fraction of the loss's valid-depth pixels
+    max_speed: float = 3.0                # lost: the camera moved faster than this (m/s) since the last tracked frame ...
+    max_turn_rate_deg: float = 360.0      # ... or turned faster (degrees/s); the time from the timestamps (--stride, skipped frames)
+    recent_keyframes: int = 2             # relocalisation starts: the last tracked pose, this many newest keyframes ...
+    spread_keyframes: int = 3             # ... and this many keyframes spread over the run
+    align_iterations: int = 10            # relocalisation aligns from each start by Gauss-Newton (at least this many iterations per level) ...
+    align_passes: int = 3                 # ... rendering the map again this many times, so a jump is walked in steps
+
+
+@dataclass
 class Config:
     name: str = "splatam"
     format_layer: str | None = None       # the format layer applied (configs/formats/), None = none
@@ -118,6 +134,7 @@ class Config:
     densify: DensifyConfig = field(default_factory=DensifyConfig)
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     live: LiveConfig = field(default_factory=LiveConfig)
+    lost_tracking: LostTrackingConfig = field(default_factory=LostTrackingConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -135,6 +152,12 @@ class Config:
             (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
+            (min(self.lost_tracking.loss_factor, self.lost_tracking.max_speed,
+                 self.lost_tracking.max_turn_rate_deg) > 0 and 0 <= self.lost_tracking.min_coverage <= 1,
+             "lost_tracking: loss_factor, max_speed and max_turn_rate_deg must be > 0, min_coverage in [0, 1]"),
+            (min(self.lost_tracking.loss_history, self.lost_tracking.min_history) >= 1
+             and min(self.lost_tracking.recent_keyframes, self.lost_tracking.spread_keyframes) >= 0,
+             "lost_tracking: loss_history and min_history must be >= 1, recent/spread_keyframes >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),

@@ -69,13 +69,15 @@ class LiveEngine:
         version = self.slam.latest_version()
         t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
         tracking_seconds = time.perf_counter() - start
+        lost = self.slam.lost_tracking.reason(t)     # the mapper skips a lost frame (SplaTAM.map_frame)
         with self._cond:
             self._pending.append((t, frame, w2c))
             self._handed = t
             self._cond.notify_all()
         return FrameResult(
             index=t, timestamp=frame.timestamp, w2c=w2c,
-            is_keyframe=is_keyframe_time(t, self.slam.total_frames, self.slam.config.keyframes.every),
+            is_keyframe=lost is None and is_keyframe_time(t, self.slam.total_frames, self.slam.config.keyframes.every),
+            lost=lost,
             num_gaussians=len(version), num_added=0, num_pruned=0,
             tracking_seconds=tracking_seconds, mapping_seconds=waited,
             tracking_loss=tracked.loss if tracked else None,

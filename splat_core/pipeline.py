@@ -114,6 +114,7 @@ class SlamRun(Protocol):
     intrinsics: Intrinsics      # working resolution
     records: list[dict]         # per processed frame: wall_seconds, tracking_loss, ...
     skipped: list[dict]         # bad frames skipped: source_index, reason
+    lost: list[dict]            # frames where tracking was lost (pose held, not mapped): index, source_index, reason
 
     def step(self) -> FrameResult | None: ...
     def finish(self) -> dict: ...
@@ -258,13 +259,29 @@ class Pipeline:
             tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
             num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
-            is_keyframe=result.is_keyframe))
+            is_keyframe=result.is_keyframe, lost=result.lost))
+        self._report_lost(result)
         if (k + 1) % RELEASE_MEMORY_EVERY == 0:
             release_free_memory()
         every = self.config.checkpoint_every
         if self.out_dir is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
             self.save_checkpoint()
         return result
+
+    @property
+    def lost(self) -> list[dict]:
+        return [dict(index=r["index"], source_index=r["source_index"], reason=r["lost"])
+                for r in self.records if r.get("lost")]
+
+    def _report_lost(self, result: FrameResult) -> None:
+        """One warning when tracking is lost and one when it is back (not one per lost frame)."""
+        before = self.records[-2].get("lost") if len(self.records) > 1 else None
+        if result.lost and not before:
+            self.warn(f"tracking lost at frame {result.index} (capture frame {result.source_index}): {result.lost}; "
+                      "relocalising against the keyframes (lost frames are not mapped)")
+        elif before and not result.lost:
+            run = next((k for k in range(len(self.records) - 2, -1, -1) if not self.records[k].get("lost")), -1)
+            self.warn(f"tracking recovered at frame {result.index} after {len(self.records) - 2 - run} lost frame(s)")
 
     # ------------------------------------------------------------------ trajectories
     @staticmethod
@@ -298,7 +315,7 @@ class Pipeline:
     # ------------------------------------------------------------------ checkpoints
     def _meta(self) -> dict:
         return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine,
-                    cursor=self.cursor, skipped=self.skipped,
+                    cursor=self.cursor, skipped=self.skipped, lost_tracking=self.slam.lost_tracking.state(),
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
@@ -325,6 +342,8 @@ class Pipeline:
         self.records = list(ckpt.meta["records"])
         self.cursor = int(ckpt.meta.get("cursor", len(self.records)))
         self.skipped = list(ckpt.meta.get("skipped", []))
+        if "lost_tracking" in ckpt.meta:
+            self.slam.lost_tracking.load_state(ckpt.meta["lost_tracking"])
         self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
         self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
 
@@ -332,7 +351,8 @@ class Pipeline:
     def evaluate(self) -> dict:
         """Render metrics at the estimated poses on frame 0 and every eval_every-th frame."""
         every = max(1, self.config.eval_every)
-        picks = [k for k in range(len(self.records)) if k == 0 or (k + 1) % every == 0]
+        picks = [k for k in range(len(self.records))
+                 if (k == 0 or (k + 1) % every == 0) and not self.records[k].get("lost")]   # a lost pose is a guess
         psnrs, ssims, depth_l1s = [], [], []
         g = self.slam.map.tensors(detach=True)
         for k in picks:
@@ -354,7 +374,7 @@ class Pipeline:
         wall = [r["wall_seconds"] for r in self.records]
         out = dict(
             engine=self.engine, frames=len(self.records), frames_skipped=len(self.skipped),
-            skipped=self.skipped,
+            skipped=self.skipped, frames_lost=len(self.lost), lost=self.lost,
             frames_without_reference=sum(not is_finite_pose(r) for r in self.references) if self.has_reference() else 0,
             num_gaussians=len(self.slam.map), keyframes=len(self.slam.keyframes),
             ate_rmse_cm=self.ate_cm(),
@@ -403,7 +423,10 @@ class Pipeline:
         if self.out_dir is not None:
             self.out_dir.mkdir(parents=True, exist_ok=True)
             stamps = [r["timestamp"] for r in self.records]
-            write_tum_trajectory(self.out_dir / "trajectory.txt", stamps, self.estimated_c2w())
+            comments = {r["index"]: f"tracking lost at frame {r['index']} (capture frame {r['source_index']}): "
+                        f"{r['reason']}; the pose below is not tracked (interpolated between the tracked frames on "
+                        "either side, or held at the last tracked pose when the run ended lost)" for r in self.lost}
+            write_tum_trajectory(self.out_dir / "trajectory.txt", stamps, self.estimated_c2w(), comments=comments)
             write_ply(self.out_dir / "map.ply", self.slam.map.to_numpy())
             write_text_atomic(self.out_dir / "config.yaml", yaml.safe_dump(self.config.to_dict(), sort_keys=False))
             write_text_atomic(self.out_dir / "metrics.json", json.dumps(result, indent=1))

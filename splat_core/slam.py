@@ -2,6 +2,7 @@
 
     w2c0   = predict(previous poses)            constant velocity
     w2c    = tracker.track(frame, map, w2c0)    align -> accept -> polish (tracking.py)
+             lost? relocalise                   against the keyframes; still lost: hold the pose, map nothing (relocalise.py)
     new    = densify(frame, map, w2c)           silhouette < 0.5 or new geometry in front
     window = select_window(frame, w2c)          current + latest keyframe + overlapping ones
     prune(map)                                  transparent / huge Gaussians
@@ -30,6 +31,7 @@ from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
 from .mapping import View, optimise_map, prune_mask
+from .relocalise import LostTracking
 from .render import Renderer
 from .tracking import Tracker, TrackResult
 
@@ -50,6 +52,7 @@ class FrameResult:
     source_index: int = 0         # frame number in the capture
     frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution
     map_version: int = 0          # the map version the frame was tracked against
+    lost: str | None = None       # why tracking was lost on this frame (its pose is the last tracked one); None: tracked
 
     @property
     def c2w(self) -> np.ndarray:
@@ -91,6 +94,7 @@ class SplaTAM:
         self.renderer = Renderer(near=config.near_plane)
         self.densify_intrinsics = intrinsics.fraction(config.densify.resolution_scale)
         self.tracker = Tracker(config.tracking, intrinsics, self.renderer, seed=config.seed, device=self.device, dtype=dtype)
+        self.lost_tracking = LostTracking(config.lost_tracking, self.tracker)
         self.map = GaussianMap.empty(config.isotropic, device=self.device, dtype=dtype)
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
         self.w2cs: list[np.ndarray] = []
@@ -113,8 +117,9 @@ class SplaTAM:
         t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given)
         t1 = time.perf_counter()
         stats = self.map_frame(frame, w2c, t)
-        keyframe = is_keyframe_time(t, self.total_frames, self.config.keyframes.every)
-        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=keyframe,
+        lost = self.lost_tracking.reason(t)
+        keyframe = lost is None and is_keyframe_time(t, self.total_frames, self.config.keyframes.every)
+        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=keyframe, lost=lost,
                            num_gaussians=len(self.map), num_added=stats.added, num_pruned=stats.pruned,
                            tracking_seconds=t1 - t0, mapping_seconds=time.perf_counter() - t1,
                            tracking_loss=tracked.loss if tracked else None,
@@ -122,23 +127,30 @@ class SplaTAM:
 
     def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None
               ) -> tuple[int, np.ndarray, TrackResult | None]:
-        """The pose of the next frame against `gaussians`; appends it to the trajectory."""
+        """The pose of the next frame against `gaussians`; appends it to the trajectory (a lost
+        frame: the last tracked pose, see relocalise.py)."""
         t = len(self.w2cs)
-        tracked = None
+        tracked, watch = None, self.lost_tracking
         if t == 0:
             w2c = np.eye(4)
             self.scene_radius = float(frame.depth.max()) / self.config.scene_radius_depth_ratio
+            watch.tracked(t, frame)
         elif w2c_given is not None:
             w2c = np.asarray(w2c_given, dtype=np.float64)
+            watch.tracked(t, frame)
         else:
-            w2c_predicted = predict_constant_velocity(self.w2cs[-1], self.w2cs[-2] if t > 1 else None)
-            tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted)
-            w2c = tracked.w2c
+            if not watch.active:    # constant velocity from two tracked poses only, never from a lost one
+                w2c_before = self.w2cs[-2] if watch.velocity_known(t) else None
+                w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before)
+                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted)
+            tracked, w2c = watch.check(t, frame, tracked, gaussians, self.w2cs, list(self.keyframes))
         self.w2cs.append(w2c)
         return t, w2c, tracked
 
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True) -> MapStats:
         """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe."""
+        if self.lost_tracking.reason(t) is not None:
+            return MapStats()       # a lost frame's pose is not known: nothing of it goes into the map
         start = time.perf_counter()
         stats = MapStats(added=self.densify(frame.color, frame.depth, w2c, t))
         if optimise and t % self.config.mapping.map_every == 0:

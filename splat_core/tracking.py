@@ -63,6 +63,7 @@ class TrackResult:
     iterations: int
     valid_pixels: int     # pixels in the loss mask at the best pose
     start: str = "prediction"   # the candidate the polish started from
+    depth_pixels: int = 0       # loss pixels with valid depth, covered by the map or not (valid_pixels / depth_pixels: coverage)
 
 
 @dataclass
@@ -162,7 +163,8 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
     _, q_best, t_best, valid = best
     w2c = pose_matrix(quat_to_rotmat_np(q_best.cpu().numpy().astype(np.float64)),
                       t_best.cpu().numpy().astype(np.float64))
-    return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid, start=start_name)
+    return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid, start=start_name,
+                       depth_pixels=int((obs.depth > 0).sum()))
 
 
 def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:

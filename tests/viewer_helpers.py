@@ -44,6 +44,7 @@ class FakePipeline:
         self.kf: list[Keyframe] = []
         self.records: list[dict] = []
         self.skipped: list[dict] = []
+        self.lost: list[dict] = []
         self.versions = 0
         self.w2cs: list[np.ndarray] = []
         self.finished = False

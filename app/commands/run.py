@@ -51,6 +51,8 @@ def _run(args, run) -> int:
             post["dropped"] = source.dropped
         if pipe.skipped:
             post["skipped"] = len(pipe.skipped)
+        if r.lost or pipe.lost:
+            post["lost"] = f"{len(pipe.lost)}" + (" (relocalising)" if r.lost else "")
         bar.set_postfix(post, refresh=False)
         bar.update(pipe.cursor - bar.n)
     bar.close()
@@ -60,7 +62,7 @@ def _run(args, run) -> int:
         print(f"stream ended ({s['stream_end']}): {s['received']} frames received and recorded in {s['capture']}, "
               f"{s['dropped']} not processed, {s['rejected']} rejected", file=sys.stderr)
     metrics = pipe.finish()
-    summary = {k: metrics[k] for k in ("frames", "frames_skipped", "ate_rmse_cm", "psnr", "depth_l1_cm",
+    summary = {k: metrics[k] for k in ("frames", "frames_skipped", "frames_lost", "ate_rmse_cm", "psnr", "depth_l1_cm",
                                        "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
     return 0

@@ -74,8 +74,9 @@ def format_tum_line(t: float, c2w: np.ndarray) -> str:
             f"{q[1]:.9f} {q[2]:.9f} {q[3]:.9f} {q[0]:.9f}")
 
 
-def write_tum_trajectory(path, timestamps, c2w, header: str | None = None) -> int:
+def write_tum_trajectory(path, timestamps, c2w, header: str | None = None, comments: dict | None = None) -> int:
     """Write poses atomically (temporary file + os.replace). Non-finite poses are left out.
+    `comments`: pose number -> a '#' line written just before that pose (e.g. a lost frame).
     Returns the number of poses written."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -84,9 +85,11 @@ def write_tum_trajectory(path, timestamps, c2w, header: str | None = None) -> in
         lines += [f"# {h}" for h in header.splitlines()]
     lines.append("# timestamp tx ty tz qx qy qz qw")
     n = 0
-    for t, T in zip(np.asarray(timestamps, dtype=np.float64), c2w):
+    for k, (t, T) in enumerate(zip(np.asarray(timestamps, dtype=np.float64), c2w)):
         if T is None or not np.all(np.isfinite(T)):
             continue
+        if comments and k in comments:
+            lines.append(f"# {comments[k]}")
         lines.append(format_tum_line(float(t), T))
         n += 1
     write_text_atomic(path, "\n".join(lines) + "\n")
