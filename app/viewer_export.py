@@ -9,7 +9,6 @@ replaced), or to a temporary folder when the viewer has no export folder.
 
 from __future__ import annotations
 
-import logging
 import tempfile
 import threading
 from pathlib import Path
@@ -18,9 +17,9 @@ import viser
 
 from splat_core.errors import InputError
 
+from .viewer_download import produce_and_send
 from .exports import EXPORT_SUFFIXES, FORMATS, export_map
 
-log = logging.getLogger(__name__)
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
           "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page"}
@@ -49,18 +48,8 @@ class ExportPanel:
                          name="viewer-export", daemon=True).start()
 
     def _export_and_send(self, client, fmt: str) -> None:
-        try:
-            path = self.export(fmt)
-        except InputError as e:
-            self.info.content = f"⚠ {e}"
-            return
-        except Exception as e:   # noqa: BLE001 - shown in the panel; the viewer keeps running
-            log.exception("export failed")
-            self.info.content = f"⚠ export failed: {e}"
-            return
-        if path is not None and client is not None:
-            client.send_file_download(path.name, path.read_bytes(), save_immediately=True)
-            client.add_notification(f"Exported {path.name}", f"written to {path}", auto_close_seconds=8.0)
+        produce_and_send(client, self.info, lambda: self.export(fmt), "export",
+                         lambda path: (f"Exported {path.name}", f"written to {path}"))
 
     def export(self, fmt: str) -> Path | None:
         """Export the latest snapshot's map as `fmt`; the path written, or None while another

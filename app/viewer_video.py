@@ -9,7 +9,6 @@ Cancel stops it and leaves no file.
 
 from __future__ import annotations
 
-import logging
 import tempfile
 import threading
 import time
@@ -22,10 +21,10 @@ from splat_core.camera import Intrinsics, invert_pose
 from splat_core.camera_path import CameraPath
 from splat_core.errors import InputError
 
+from .viewer_download import produce_and_send
 from .novel_view import browser_camera
 from .viewer_scene import wxyz_position
 
-log = logging.getLogger(__name__)
 
 SIZES = ("640x480", "320x240", "1280x720", "1920x1080")
 PATH_COLOR = (230, 60, 160)
@@ -154,19 +153,8 @@ class CameraPathPanel:
                          daemon=True).start()
 
     def _render_and_send(self, client) -> None:
-        try:
-            path = self.render_video()
-        except InputError as e:
-            self.info.content = f"⚠ {e}"
-            return
-        except Exception as e:   # noqa: BLE001 - shown in the panel; the viewer keeps running
-            log.exception("camera-path video failed")
-            self.info.content = f"⚠ video failed: {e}"
-            return
-        if path is not None and client is not None:
-            client.send_file_download(path.name, path.read_bytes(), save_immediately=True)
-            client.add_notification("Video ready", f"{path.name} ({path.stat().st_size:,} bytes), "
-                                    f"written to {path}", auto_close_seconds=8.0)
+        produce_and_send(client, self.info, self.render_video, "video",
+                         lambda path: ("Video ready", f"{path.name} ({path.stat().st_size:,} bytes), written to {path}"))
 
     def render_video(self, out: Path | None = None) -> Path | None:
         """Render the path into an MP4 (the export folder's camera_path.mp4 by default) from the
