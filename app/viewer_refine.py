@@ -5,8 +5,10 @@
 
 The button is enabled once SLAM has finished into a run folder (`--out`) or when browsing a run
 folder. The job (splat_core.refine.RefineJob: the same as `splatam refine`, so it resumes from and
-leaves the same files) runs in its own thread; the panel shows its progress, and once it has
-finished `panel.source` hands the viewer snapshots whose Gaussians are the refined ones.
+leaves the same files) runs in its own thread; the panel shows its progress, and `panel.source`
+hands the viewer snapshots whose Gaussians are the map being refined: a copy every
+`publish_seconds` while it runs (so the browser shows the map sharpening), the refined map once
+it has finished.
 Closing the viewer mid-refine stops the job at the next iteration and checkpoints it.
 """
 
@@ -68,9 +70,9 @@ class RefinedSource:
 
 class RefinePanel:
     def __init__(self, server: viser.ViserServer, source, wake=lambda: None, *, iterations: int = 1000,
-                 order: int = 6, update_seconds: float = 0.5):
+                 order: int = 6, update_seconds: float = 0.5, publish_seconds: float = 15.0):
         self.source = RefinedSource(self, source)
-        self._wake, self._update_seconds = wake, update_seconds
+        self._wake, self._update_seconds, self._publish_seconds = wake, update_seconds, publish_seconds
         gui = server.gui
         with gui.add_folder("Refine", order=order, expand_by_default=False):
             self.iterations = gui.add_number("Iterations", initial_value=iterations, min=1, step=100)
@@ -86,6 +88,7 @@ class RefinePanel:
         self._stop = threading.Event()
         self.thread: threading.Thread | None = None
         self.result: dict | None = None      # the metrics.json refine section once done
+        self.published = 0                   # maps handed to the viewer so far (during and after the job)
         self.error: str | None = None
 
     # ------------------------------------------------------------------ state
@@ -126,7 +129,7 @@ class RefinePanel:
         try:
             self.info.content = "Loading the keyframes and the SLAM map's held-out metrics…"
             job = RefineJob(run_dir, RefineSettings(iterations=iterations), resolution=resolution)
-            shown = 0.0
+            shown = published = time.monotonic()
             while not job.done:
                 if self._stop.is_set():
                     job.save_checkpoint()
@@ -139,13 +142,13 @@ class RefinePanel:
                     self.info.content = (f"Iteration {job.iteration} / {job.total}: loss {loss:.4f}, "
                                          f"{len(job.refiner.map):,} Gaussians, "
                                          f"{job.seconds / job.iteration:.2f} s/it")
+                if time.monotonic() - published >= self._publish_seconds and not job.done:
+                    published = time.monotonic()
+                    self._publish(job)
             self.info.content = "Evaluating the refined map on the held-out frames…"
             self.result = job.finish()
-            with self._lock:
-                self._refined = freeze_gaussians(job.refiner.map.to_numpy())
-                self._generation += 1
+            self._publish(job)
             self.info.content = summary_markdown(self.result)
-            self._wake()
         except InputError as e:
             self.error = str(e)
             self.info.content = f"**Refine failed:** {e}"
@@ -156,6 +159,14 @@ class RefinePanel:
         finally:
             self.progress.visible = False
             self.button.disabled = self._run_dir is None
+
+    def _publish(self, job) -> None:
+        """Show the job's map as it stands (a frozen copy: the job goes on stepping its tensors)."""
+        with self._lock:
+            self._refined = freeze_gaussians(job.refiner.map.to_numpy())
+            self._generation += 1
+        self.published = self._generation
+        self._wake()
 
     def close(self, timeout: float = 30.0) -> None:
         self._stop.set()

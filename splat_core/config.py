@@ -91,6 +91,7 @@ class KeyframeConfig:
     selection: str = "overlap"            # "overlap" (paper: top-k) or "random" (original code)
     overlap_samples: int = 1600
     overlap_border: int = 20
+    overlap_within_depth: bool = False    # a point overlaps a keyframe only within the depth it measured (no: SplaTAM's test)
     memory_mb: float = 512.0              # keyframe images kept in host memory; older ones are read from a file (keyframes.py)
 
 

@@ -229,6 +229,25 @@ def test_overlap_scores_and_window_selection():
     assert [kf.frame_index for kf in window] == [1, 3]
 
 
+def test_overlap_within_depth_drops_keyframes_that_never_measured_the_view():
+    # A keyframe far back on the same line of sight projects today's points inside its image
+    # (SplaTAM's test counts it), but they lie beyond the farthest depth it measured.
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    intr = f.intrinsics
+    far = float(f.depth.max())
+    back = pose_matrix(np.eye(3), [0, 0, 3 * far])               # w2c: the camera 3 x far behind
+    near_back = pose_matrix(np.eye(3), [0, 0, 0.02 * far])
+    store = KeyframeStore(KeyframeConfig(overlap_border=2), intr)
+    for i, w2c in enumerate([back, near_back]):
+        store.add(i, w2c, f.color, f.depth)
+    def scores(within):
+        return overlap_scores(f.depth, np.eye(4), intr, store.items, np.random.default_rng(0), 1600, 2, within)
+    plain, ranged = scores(False), scores(True)
+    assert plain[0] > 0.5 and ranged[0] == 0.0
+    assert ranged[1] == pytest.approx(plain[1]) and ranged[1] > 0.5
+
+
 # ----------------------------------------------------------------------------- whole pipeline
 
 @pytest.mark.slow

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import tracemalloc
 
+import numpy as np
+
 from splat_core.config import load_config
 from splat_core.pipeline import Pipeline
 from splat_core.synthetic import SyntheticSource
-from splat_core.synthetic_corridor import CorridorSource
+from splat_core.synthetic_corridor import PERIOD, CorridorSource
 
 
 def test_a_frame_leaves_behind_only_its_keyframe_and_a_few_numbers(tmp_path):
@@ -44,3 +46,6 @@ def test_the_corridor_keeps_showing_new_geometry():
     first, last = src.c2w[0][:3, 3], src.c2w[-1][:3, 3]
     assert 14 < last[0] - first[0] < 16                     # 1.5 cm a frame along the corridor
     assert all((src[i].depth > 0).mean() > 0.3 for i in (0, 500, 999))
+    # the motion repeats after PERIOD frames (the benchmark compares frames 100-200 with 900-1000)
+    a, b = src.c2w[150], src.c2w[150 + PERIOD]
+    assert np.allclose(a[:3, :3], b[:3, :3]) and np.allclose(b[:3, 3] - a[:3, 3], [PERIOD * 0.015, 0, 0])

@@ -140,7 +140,7 @@ def test_bad_run_dir_is_one_line(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1 and "map.ply" in err
 
 
-def test_viewer_refine_button_replaces_the_map(run):
+def test_viewer_refine_button_shows_the_map_while_refining_then_replaces_it(run):
     import viser
 
     from app.browse import load_run
@@ -151,6 +151,7 @@ def test_viewer_refine_button_replaces_the_map(run):
     app = build_viewer(server, StaticSource(load_run(run)), render_backend="reference", update_hz=20)
     try:
         panel = app.refine_panel
+        panel._publish_seconds = 0.0          # publish after every iteration
         wait_until(lambda: app.applied is not None and not panel.button.disabled, 10, what="Refine enabled")
         slam_count = app.applied.num_gaussians
         panel.iterations.value = 20
@@ -161,6 +162,7 @@ def test_viewer_refine_button_replaces_the_map(run):
         wait_until(lambda: app.applied.num_gaussians == len(refined["means"]) and np.array_equal(
             app.applied.gaussians["means"], refined["means"]), 10, what="the refined map shown")
         assert panel.result["num_gaussians_before"] == slam_count
+        assert panel.published == 20                     # 19 while refining, the result at the end
         wait_until(lambda: not panel.running and not panel.button.disabled, 10, what="Refine enabled again")
     finally:
         app.close()
