@@ -133,7 +133,10 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
         out = Path(out)
         if out.exists() and not out.is_dir():
             raise InputError(f"{out}: --out must be a folder")
-        if not resume and (out / "checkpoint").exists():
+        from splat_core.io import checkpoint
+        # a folder with a checkpoint or a finished run's metrics is taken; one killed before its
+        # first checkpoint (only checkpoint/keyframes.bin) holds nothing worth keeping
+        if not resume and (checkpoint.exists(out / "checkpoint") or (out / "metrics.json").is_file()):
             raise InputError(f"{out}: already holds a run; choose another --out (or continue it: splatam run --resume)")
     if input_path == "synthetic":
         input_path = None

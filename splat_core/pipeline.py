@@ -168,6 +168,9 @@ class Pipeline:
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
         self._last_step = None
+        if resume and self.out_dir is not None and not checkpoint.exists(self.out_dir / "checkpoint"):
+            self.warn(f"{self.out_dir / 'checkpoint'}: no checkpoint written yet; starting from the first frame")
+            resume = False
         if resume:
             self._resume()
         elif self.out_dir is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -174,3 +175,23 @@ def test_run_works_on_every_capture_format(tmp_path, capsys, writer, name):
     assert code == 0, err
     stamps, _ = read_tum_trajectory(out / "trajectory.txt")
     assert len(stamps) == len(open_input(fixture.path)) >= 2      # ScanNet++ skips its is_bad frame
+
+
+def test_a_run_killed_before_its_first_checkpoint_starts_again(capture, capsys):
+    # Killed at frame 1: the run folder holds only the keyframe file that keyframe 0 went into.
+    out = capture / "run"
+    (out / "checkpoint").mkdir(parents=True)
+    (out / "checkpoint" / "keyframes.bin").write_bytes(b"\0" * 1000)
+    args = ["run", "--input", str(capture / "cap"), "--out", str(out), "--config", str(capture / "tiny.yaml"),
+            "--max-frames", "2", "--quiet"]
+    code, err = run_cli(args + ["--resume"], capsys)
+    assert code == 0 and "no checkpoint written yet; starting from the first frame" in err
+    assert len(read_tum_trajectory(out / "trajectory.txt")[0]) == 2
+    code, err = run_cli(args, capsys)         # finished now: the folder is taken
+    assert code == 2 and "already holds a run" in err
+    (out / "metrics.json").unlink()
+    shutil.rmtree(out / "checkpoint")
+    (out / "checkpoint").mkdir()
+    (out / "checkpoint" / "keyframes.bin").write_bytes(b"\0" * 1000)
+    code, err = run_cli(args, capsys)         # without --resume it starts again too
+    assert code == 0, err
