@@ -3,6 +3,8 @@ canvas, a camera-path MP4 made from views taken in the page, and the export pane
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -59,7 +61,14 @@ def test_measure_video_and_export_in_the_page(browser, server, tmp_path):  # noq
         app.measure.enabled.value = True
         # the page turns scene clicks on when the server's message arrives: click until one lands
         wait_until(lambda: click_at(page, client, A) or app.measure.points, 30, interval=1.0, what="a click")
-        app.measure.clear()
+        # a click of that loop may still be on its way: clear until none has come for 1.5 s (one
+        # arriving later made the first point, the next click a second, and B a third, seen in CI)
+
+        def settled():
+            app.measure.clear()
+            time.sleep(1.5)
+            return not app.measure.points
+        wait_until(settled, 30, interval=0.0, what="stray clicks to settle")
         click_at(page, client, A)
         wait_until(lambda: len(app.measure.points) == 1, 30, what="first point")
         assert np.linalg.norm(app.measure.points[0] - A) < 0.01
