@@ -88,13 +88,17 @@ class RefinePanel:
         self._stop = threading.Event()
         self.thread: threading.Thread | None = None
         self.result: dict | None = None      # the metrics.json refine section once done
-        self.published = 0                   # maps handed to the viewer so far (during and after the job)
         self.error: str | None = None
 
     # ------------------------------------------------------------------ state
     @property
     def running(self) -> bool:
         return self.thread is not None and self.thread.is_alive()
+
+    @property
+    def published(self) -> int:
+        """Maps handed to the viewer so far (during and after refine jobs)."""
+        return self.refined()[1]
 
     def refined(self) -> tuple[dict | None, int]:
         with self._lock:
@@ -165,7 +169,6 @@ class RefinePanel:
         with self._lock:
             self._refined = freeze_gaussians(job.refiner.map.to_numpy())
             self._generation += 1
-        self.published = self._generation
         self._wake()
 
     def close(self, timeout: float = 30.0) -> None:

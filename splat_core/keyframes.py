@@ -93,42 +93,30 @@ def overlap_scores(depth: np.ndarray, w2c: np.ndarray, intr: Intrinsics, keyfram
 
     Samples `samples` valid pixels (with replacement), back-projects them with the current pose,
     and counts those landing more than `border` pixels inside each keyframe's image in front of it
-    (SplaTAM's test). `within_depth` also asks that the point lie no farther from the keyframe's
-    camera than the farthest depth the keyframe measured (+5%): a keyframe ten metres back down a
+    (SplaTAM's test). `within_depth` also asks that the point's depth in the keyframe's view be
+    no more than the farthest depth the keyframe measured (+5%): a keyframe ten metres back down a
     corridor "sees" today's view inside its image but never measured it, and choosing it would put
     the whole stretch in between into the mapping window, so that mapping's cost grows with the
-    run. Keyframes too far away for any point to pass are not projected at all.
+    run.
     """
-    scores = np.zeros(len(keyframes))
     valid = np.flatnonzero(depth.reshape(-1) > 0)
     if valid.size == 0 or not keyframes:
-        return scores
+        return np.zeros(len(keyframes))
     pick = rng.choice(valid, size=samples, replace=True)
     pts_cam = backproject(depth, intr).reshape(-1, 3)[pick]
     c2w = invert_pose(w2c)
     pts_world = pts_cam @ c2w[:3, :3].T + c2w[:3, 3]
     w2cs = np.stack([kf.w2c for kf in keyframes])                      # K x 4 x 4
-    rows = np.arange(len(keyframes))
-    if within_depth:
-        far = np.array([kf.depth_step * DEPTH_LEVELS for kf in keyframes]) * 1.05
-        centres = -np.einsum("kji,kj->ki", w2cs[:, :3, :3], w2cs[:, :3, 3])    # camera centres: -R^T t
-        # a point at z <= far inside the image is at most far x (the image corner's ray length) away
-        corner = np.hypot(max(intr.cx, intr.width - intr.cx) / intr.fx, max(intr.cy, intr.height - intr.cy) / intr.fy)
-        middle = pts_world.mean(axis=0)
-        reach = np.linalg.norm(pts_world - middle, axis=1).max()
-        rows = rows[np.linalg.norm(centres - middle, axis=1) <= far * np.hypot(1.0, corner) + reach]
-        if rows.size == 0:
-            return scores
-    p = w2cs[rows, :3, :3] @ pts_world.T + w2cs[rows, :3, 3, None]        # K' x 3 x N: one pass for all
+    p = w2cs[:, :3, :3] @ pts_world.T + w2cs[:, :3, 3, None]            # K x 3 x N: one pass for all
     z = p[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         u = intr.fx * p[:, 0] / z + intr.cx
         v = intr.fy * p[:, 1] / z + intr.cy
     inside = (z > 0) & (u > border) & (u < intr.width - border) & (v > border) & (v < intr.height - border)
     if within_depth:
-        inside &= z <= far[rows, None]
-    scores[rows] = inside.mean(axis=1)
-    return scores
+        far = np.array([kf.depth_step * DEPTH_LEVELS for kf in keyframes]) * 1.05
+        inside &= z <= far[:, None]
+    return inside.mean(axis=1)
 
 
 class KeyframeStore:

@@ -330,9 +330,8 @@ class Pipeline:
         checkpoint.save(self.out_dir / "checkpoint", self.slam.state_arrays(), self._meta())
 
     def _resume(self) -> None:
-        if self.out_dir is None or not checkpoint.exists(self.out_dir / "checkpoint"):
-            where = self.out_dir / "checkpoint" if self.out_dir else "--out"
-            raise InputError(f"{where}: nothing to resume (no checkpoint written yet)")
+        if self.out_dir is None:
+            raise InputError("--out: nothing to resume (no checkpoint written yet)")
         ckpt = checkpoint.load(self.out_dir / "checkpoint")
         if ckpt.meta.get("indices") != self.indices:
             raise InputError(f"{self.out_dir}: the checkpoint was made with other frames "
