@@ -7,6 +7,10 @@
     python benchmarks/slam.py --engines sequential,live --presets cpu_dense,cpu   # both engines, one run
     python benchmarks/slam.py --presets cpu_dense@sequential,cpu@live,cpu@sequential --open3d
                                                                   # PRESET@ENGINE: that engine only
+    git worktree add /tmp/before HEAD~3
+    python benchmarks/slam.py --presets cpu@sequential@/tmp/before,cpu@live,cpu@sequential --open3d
+                                                                  # PRESET@ENGINE@CHECKOUT: another checkout's
+                                                                  #   code (the code before a change, same run)
 
 s/frame is wall-clock time per frame (`wall_seconds` in metrics.json: from the end of one frame to
 the end of the next, so the live engine's waits for its mapper count, and the time its mapper
@@ -46,14 +50,15 @@ def machine() -> str:
 
 
 def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str,
-            engine: str = "sequential") -> dict:
+            engine: str = "sequential", code: Path = ROOT) -> dict:
     cmd = [sys.executable, "-m", "app.cli", "run", "--input", str(input_path), "--out", str(out),
            "--config", preset, "--device", device, "--engine", engine, "--quiet"]
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
     if out.exists():
         cmd += ["--resume"]
-    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(code), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run(cmd, cwd=code, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     m = json.loads((out / "metrics.json").read_text())
@@ -84,7 +89,7 @@ def main() -> None:
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
 
-    work = Path(args.work) if args.work else Path(tempfile.mkdtemp(prefix="splatam_bench_"))
+    work = Path(args.work).resolve() if args.work else Path(tempfile.mkdtemp(prefix="splatam_bench_"))
     work.mkdir(parents=True, exist_ok=True)
     results = []
     for seq in args.sequences.split(","):
@@ -96,11 +101,15 @@ def main() -> None:
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue
         for entry in args.presets.split(","):
-            preset, _, engine_of_entry = entry.partition("@")
+            preset, _, rest = entry.partition("@")
+            engine_of_entry, _, checkout = rest.partition("@")
+            code = Path(checkout).resolve() if checkout else ROOT
             for engine in [engine_of_entry] if engine_of_entry else args.engines.split(","):
-                out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}__{engine}"
+                tag = f"__{code.name}" if checkout else ""
+                out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}__{engine}{tag}"
                 row = {"sequence": seq, "preset": preset, "engine": engine,
-                       **run_one(path, preset, out, args.max_frames, args.device, engine),
+                       **({"code": str(code)} if checkout else {}),
+                       **run_one(path, preset, out, args.max_frames, args.device, engine, code),
                        "machine": machine(), "run_dir": str(out)}
                 results.append(row)
                 if not args.json:

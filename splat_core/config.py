@@ -75,6 +75,8 @@ class MappingConfig:
     prune_opacity: float = 0.005
     prune_big_ratio: float = 0.1          # remove Gaussians larger than this x scene radius
     visible_only: bool = True             # optimise only Gaussians seen from the window (same result for the rest: zero grads)
+    tile_fraction: float = 1.0            # each iteration draws and compares this fraction of the 16 x 16 tiles (random; 1 = all) ...
+    min_tiles: int = 64                   # ... but at least this many (small images map on every tile)
 
 
 @dataclass
@@ -152,6 +154,8 @@ class Config:
              "tracking.align_levels and tracking.align_passes must be >= 1"),
             (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
+            (0 < self.mapping.tile_fraction <= 1 and self.mapping.min_tiles >= 0,
+             "mapping.tile_fraction must be in (0, 1] and mapping.min_tiles >= 0"),
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
             (min(self.lost_tracking.loss_factor, self.lost_tracking.max_speed,
                  self.lost_tracking.max_turn_rate_deg) > 0 and 0 <= self.lost_tracking.min_coverage <= 1,

@@ -107,6 +107,14 @@ class GaussianMap:
         """Adam parameter groups, one per parameter with its own learning rate."""
         return [{"params": [self.params[n]], "lr": float(lrs[n]), "name": n} for n in PARAM_NAMES]
 
+    def adam(self, lrs: dict) -> torch.optim.Adam:
+        """Adam over the parameters (eps 1e-15, as 3DGS), torch's fused kernel where it has one
+        (CPU since torch 2.4: 4x faster a step on 70k Gaussians than the per-tensor loop)."""
+        try:
+            return torch.optim.Adam(self.param_groups(lrs), eps=1e-15, fused=True)
+        except (RuntimeError, TypeError):
+            return torch.optim.Adam(self.param_groups(lrs), eps=1e-15)
+
     # ------------------------------------------------------------------ editing
     def append(self, other: "GaussianMap", optimizer: torch.optim.Optimizer | None = None) -> None:
         """Add `other`'s Gaussians; zero Adam moments are appended for them if an optimiser is given."""

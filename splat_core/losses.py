@@ -5,7 +5,8 @@ dtype and device. SSIM follows the standard 3D Gaussian splatting definition (sp
 11 x 11 Gaussian window with sigma 1.5 applied per channel, zero padding of 5 pixels,
 C1 = 0.01^2, C2 = 0.03^2 (data range 1), and the mean of the SSIM map. The window is the outer
 product of a 1D Gaussian, so the blur runs as two 1D passes (same result, about twice as fast on
-a CPU as one 11 x 11 convolution).
+a CPU as one 11 x 11 convolution). On the CPU, `ssim` against a constant target runs Numba kernels
+with an analytic backward (ssim_cpu.py); the torch code here is the reference and serves the rest.
 """
 
 from __future__ import annotations
@@ -106,5 +107,15 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
 
 def ssim(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:
     """Mean SSIM of two H x W x C (or H x W) images: a 0-dim tensor, 1 for identical images.
-    The mapping loss uses 1 - ssim(rendered, observed)."""
+    The mapping loss uses 1 - ssim(rendered, observed).
+
+    CPU tensors of one float dtype (float32 or float64), H x W x C or H x W, with a target img2
+    that needs no gradient take the Numba path (`ssim_cpu`: the same value and gradient, several
+    times faster; benchmarks/ssim.py); anything else runs `ssim_map(img1, img2).mean()`."""
+    if (img1.device.type == "cpu" and img2.device.type == "cpu"
+            and img1.dtype in (torch.float32, torch.float64) and img2.dtype == img1.dtype
+            and img1.dim() in (2, 3) and img1.shape == img2.shape and img1.numel() > 0
+            and not img2.requires_grad):
+        from .ssim_cpu import ssim_cpu
+        return ssim_cpu(img1, img2)
     return ssim_map(img1, img2).mean()

@@ -6,6 +6,11 @@ overlapping keyframes) at its frozen pose and minimises
 with Adam (per-parameter learning rates, eps 1e-15, fresh every frame). Low-opacity and
 oversized Gaussians are pruned at iterations 0, 20, ... up to `prune_until`.
 
+With mapping.tile_fraction < 1 an iteration draws and compares only that fraction of the
+image's 16 x 16 tiles, chosen at random (the CPU rasterizer skips the others' work), but at
+least mapping.min_tiles of them: a small image (80 x 60 has 20 tiles) maps on every tile, as
+half of so few leaves large parts of the view out of each step, for little saving.
+
 Only Gaussians near the window's view frusta are optimised: the others receive exactly zero
 gradient, and a freshly created Adam moves nothing with zero gradients, so the result equals
 optimising the whole map while the cost follows the visible part only.
@@ -22,7 +27,7 @@ from .camera import Intrinsics
 from .config import MappingConfig
 from .gaussians import PARAM_NAMES, GaussianMap
 from .losses import ssim
-from .render import Renderer
+from .render import Renderer, tile_grid, tile_pixels
 from .render.project import frustum_mask
 
 
@@ -35,12 +40,38 @@ class View:
     w2c: np.ndarray       # 4 x 4 (fixed during mapping)
 
 
-def mapping_loss(rendered, view: View, config: MappingConfig):
-    valid = (view.depth > 0).to(view.depth.dtype)
+def mapping_loss(rendered, view: View, config: MappingConfig, pixels: torch.Tensor | None = None):
+    """The loss above; `pixels` (H x W bool): over those pixels only (the tiles an iteration drew).
+    SSIM then compares the drawn pixels set into the observed image (the rest match exactly, so
+    they add nothing but their window's overlap with drawn pixels), scaled by H W / drawn pixels."""
+    valid = view.depth > 0
+    if pixels is not None:
+        valid = valid & pixels
+    valid = valid.to(view.depth.dtype)
     depth_l1 = (torch.abs(view.depth - rendered.depth) * valid).sum() / valid.sum().clamp(min=1)
-    color_l1 = torch.abs(view.color - rendered.color).mean()
-    color = (1 - config.ssim_weight) * color_l1 + config.ssim_weight * (1 - ssim(rendered.color, view.color))
+    if pixels is None:
+        color_l1 = torch.abs(view.color - rendered.color).mean()
+        dissimilarity = 1 - ssim(rendered.color, view.color)
+    else:
+        drawn = pixels.sum().clamp(min=1)
+        color_l1 = (torch.abs(view.color - rendered.color) * pixels[..., None]).sum() / (3 * drawn)
+        mixed = torch.where(pixels[..., None], rendered.color, view.color)
+        dissimilarity = (1 - ssim(mixed, view.color)) * (pixels.numel() / drawn)
+    color = (1 - config.ssim_weight) * color_l1 + config.ssim_weight * dissimilarity
     return config.depth_weight * depth_l1 + config.color_weight * color
+
+
+def draw_tiles(intr: Intrinsics, fraction: float, rng: np.random.Generator, min_tiles: int = 0):
+    """A random fraction of the image's tiles, but at least min_tiles of them (tiles grid, H x W
+    pixel mask), or (None, None) for all."""
+    rows, cols = tile_grid(intr)
+    count = max(1, round(fraction * rows * cols), min_tiles)
+    if count >= rows * cols:
+        return None, None
+    tiles = np.zeros(rows * cols, dtype=bool)
+    tiles[rng.choice(rows * cols, size=count, replace=False)] = True
+    tiles = tiles.reshape(rows, cols)
+    return tiles, torch.from_numpy(tile_pixels(tiles, intr.width, intr.height))
 
 
 def prune_mask(m: GaussianMap, config: MappingConfig, scene_radius: float) -> torch.Tensor:
@@ -73,13 +104,14 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
         return {"pruned": removed, "loss": None, "optimised": 0}
     optimised = index.clone()
     sub = GaussianMap(*(m.params[n].detach()[index] for n in PARAM_NAMES), m.birth_frame[index.cpu()])
-    optimizer = torch.optim.Adam(sub.param_groups(config.lrs), eps=1e-15)
+    optimizer = sub.adam(config.lrs)
 
     loss_value = None
     for i in range(iterations):
         view = window[int(rng.integers(len(window)))]
-        out = renderer.render(sub, intr, view.w2c)
-        loss = mapping_loss(out, view, config)
+        tiles, pixels = draw_tiles(intr, config.tile_fraction, rng, config.min_tiles)
+        out = renderer.render(sub, intr, view.w2c, tiles=tiles)
+        loss = mapping_loss(out, view, config, None if pixels is None else pixels.to(view.depth.device))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()

@@ -40,15 +40,16 @@ def choose_pixels(rule: str, color: np.ndarray, depth: np.ndarray, tile: int, pe
     if rule not in RULES:
         raise ValueError(f"unknown pixel rule {rule!r}; expected one of {RULES}")
     H, W = depth.shape
-    score = _score(rule, color, depth, rng).ravel()
-    ys, xs = np.divmod(np.arange(H * W), W)
-    block = (ys // tile) * ((W + tile - 1) // tile) + xs // tile
-    valid = depth.ravel() > 0
-    idx = np.flatnonzero(valid)
-    # Sort by block, best score first; keep the first per_tile of every block.
-    order = idx[np.lexsort((-score[idx], block[idx]))]
-    b = block[order]
-    first = np.r_[0, np.flatnonzero(b[1:] != b[:-1]) + 1]
-    rank = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
-    chosen = np.sort(order[rank < per_tile])
-    return np.stack([xs[chosen], ys[chosen]], axis=1).astype(np.int64)
+    score = np.where(depth > 0, _score(rule, color, depth, rng), -np.inf)
+    # Blocks as rows of tile * tile scores (padding scores -inf), best first; keep per_tile of each.
+    by, bx = -(-H // tile), -(-W // tile)
+    padded = np.full((by * tile, bx * tile), -np.inf)
+    padded[:H, :W] = score
+    blocks = padded.reshape(by, tile, bx, tile).transpose(0, 2, 1, 3).reshape(by * bx, tile * tile)
+    best = np.argsort(-blocks, axis=1, kind="stable")[:, :per_tile]
+    keep = np.isfinite(np.take_along_axis(blocks, best, axis=1))
+    block_y, block_x = np.divmod(np.repeat(np.arange(by * bx), best.shape[1]).reshape(best.shape), bx)
+    ys = (block_y * tile + best // tile)[keep]
+    xs = (block_x * tile + best % tile)[keep]
+    chosen = np.sort(ys * W + xs)
+    return np.stack([chosen % W, chosen // W], axis=1).astype(np.int64)

@@ -16,6 +16,7 @@ the map through `MapVersion`s that `publish` makes, never the tensors the mapper
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 import time
@@ -197,6 +198,8 @@ class SplaTAM:
         if iterations is None:
             iterations = mc.first_frame_iterations if (first and mc.first_frame_iterations is not None) \
                 else mc.iterations
+        if first:       # frame 0 anchors every later pose: its long first mapping draws every tile
+            mc = dataclasses.replace(mc, tile_fraction=1.0)
         stats = optimise_map(self.map, window, self.intrinsics, mc, iterations, self.scene_radius, self.rng,
                              renderer=self.renderer)
         return stats["pruned"]

@@ -173,7 +173,8 @@ def test_pruning_removes_transparent_and_huge_gaussians_and_keeps_adam_state_ali
     assert opt.param_groups[0]["params"][0] is m.means
 
 
-def test_mapping_reduces_the_loss_and_leaves_unseen_gaussians_untouched():
+@pytest.mark.parametrize("tile_fraction", [1.0, 0.5])
+def test_mapping_reduces_the_loss_and_leaves_unseen_gaussians_untouched(tile_fraction):
     src = small_source(n=1, w=64, h=48)
     f = src[0]
     m = map_from_frame(f)
@@ -182,15 +183,55 @@ def test_mapping_reduces_the_loss_and_leaves_unseen_gaussians_untouched():
     with torch.no_grad():
         m.colors[:-1] += 0.2                       # spoil the colours
     view = View(torch.as_tensor(f.color), torch.as_tensor(f.depth), np.eye(4))
-    cfg = MappingConfig()
+    cfg = MappingConfig(tile_fraction=tile_fraction, min_tiles=0)
     from splat_core.mapping import mapping_loss
     before = float(mapping_loss(render(m, f.intrinsics, np.eye(4)), view, cfg))
     far_before = m.means[-1].detach().clone()
-    stats = optimise_map(m, [view], f.intrinsics, cfg, 15, scene_radius=2.0, rng=np.random.default_rng(0))
+    stats = optimise_map(m, [view], f.intrinsics, cfg, round(15 / tile_fraction), scene_radius=2.0,
+                         rng=np.random.default_rng(0))
     after = float(mapping_loss(render(m, f.intrinsics, np.eye(4)), view, cfg))
     assert after < 0.8 * before
     assert torch.equal(m.means[-1].detach(), far_before)
     assert stats["optimised"] == len(m) - 1
+
+
+def test_first_frame_maps_every_tile(monkeypatch):
+    """Frame 0 anchors the trajectory: its long first mapping draws every tile; later frames draw
+    the configured fraction."""
+    import splat_core.slam as slam_module
+    seen = []
+    monkeypatch.setattr(slam_module, "optimise_map",
+                        lambda m, window, intr, config, iterations, *a, **k: seen.append(
+                            (config.tile_fraction, iterations)) or {"pruned": 0})
+    cfg = load_config("cpu")
+    assert cfg.mapping.tile_fraction < 1
+    src = small_source(n=2)
+    slam = slam_module.SplaTAM(cfg, src.intrinsics)
+    slam.optimise([], first=True)
+    slam.optimise([], first=False)
+    assert seen == [(1.0, cfg.mapping.first_frame_iterations), (cfg.mapping.tile_fraction, cfg.mapping.iterations)]
+
+
+def test_mapping_loss_over_drawn_tiles():
+    """Over every pixel the tile loss is the full loss; over some tiles it sees those tiles only."""
+    from splat_core.mapping import draw_tiles, mapping_loss
+    src = small_source(n=2, w=64, h=48)
+    f, g = src[0], src[1]
+    rendered = render(map_from_frame(f), f.intrinsics, np.eye(4))
+    view = View(torch.as_tensor(g.color), torch.as_tensor(g.depth), np.eye(4))
+    cfg = MappingConfig()
+    full = float(mapping_loss(rendered, view, cfg))
+    everything = torch.ones(f.intrinsics.height, f.intrinsics.width, dtype=torch.bool)
+    assert float(mapping_loss(rendered, view, cfg, everything)) == pytest.approx(full, rel=1e-5)
+    tiles, pixels = draw_tiles(f.intrinsics, 0.5, np.random.default_rng(0))
+    assert tiles.shape == (3, 4) and int(tiles.sum()) == 6 and int(pixels.sum()) == 6 * 16 * 16
+    spoilt = rendered._replace(color=torch.where(pixels[..., None], rendered.color, 1 - rendered.color))
+    assert float(mapping_loss(spoilt, view, cfg, pixels)) == pytest.approx(float(mapping_loss(rendered, view, cfg, pixels)),
+                                                                         rel=1e-2)
+    assert float(mapping_loss(spoilt, view, cfg)) > 1.2 * full
+    assert draw_tiles(f.intrinsics, 1.0, np.random.default_rng(0)) == (None, None)
+    assert int(draw_tiles(f.intrinsics, 0.5, np.random.default_rng(0), min_tiles=8)[0].sum()) == 8
+    assert draw_tiles(f.intrinsics, 0.5, np.random.default_rng(0), min_tiles=12) == (None, None)   # small images: all
 
 
 def test_frustum_mask_is_conservative():

@@ -119,3 +119,117 @@ def test_l1_masked_nan_does_not_poison_value_or_gradient():
     assert torch.all(pred.grad[0, 0] == 0)
     expected = (pred.detach() - target).abs()[mask].sum()
     assert float(loss.detach()) == pytest.approx(float(expected))
+
+
+# ----------------------------------------------------------------------------- Numba CPU SSIM
+# losses.ssim runs splat_core/ssim_cpu.py for CPU images with a constant target; the torch code
+# (ssim_map(...).mean(), F.conv2d and autograd) is the reference it must reproduce.
+
+from splat_core import ssim_cpu  # noqa: E402
+
+
+def _pair(shape, dtype, seed):
+    g = torch.Generator().manual_seed(seed)
+    x = torch.rand(*shape, generator=g, dtype=dtype)
+    y = (x + 0.2 * torch.randn(*shape, generator=g, dtype=dtype)).clamp(0, 1)
+    return x, y
+
+
+def _torch_ssim(x, y):
+    return ssim_map(x, y).mean()
+
+
+def _is_numba_path(value: torch.Tensor) -> bool:
+    return value.grad_fn is not None and "SSIMCPU" in type(value.grad_fn).__name__
+
+
+@pytest.mark.parametrize("shape", [(24, 30, 3), (7, 9, 3), (12, 13), (17, 11, 2), (5, 40, 1)])
+@pytest.mark.parametrize("dtype,tol", [(torch.float64, 1e-12), (torch.float32, 1e-5)])
+def test_numba_ssim_value_matches_torch(shape, dtype, tol):
+    x, y = _pair(shape, dtype, seed=len(shape) * 100 + shape[0])
+    got = ssim_cpu.ssim_cpu(x, y)
+    want = _torch_ssim(x, y)
+    assert got.dtype == dtype and got.shape == ()
+    assert abs(float(got) - float(want)) <= tol
+    # The dispatch takes this path for CPU tensors with a constant target.
+    xg = x.clone().requires_grad_(True)
+    via_ssim = ssim(xg, y)
+    assert _is_numba_path(via_ssim)
+    assert abs(float(via_ssim.detach()) - float(want)) <= tol
+
+
+def test_numba_ssim_not_symmetric_images():
+    # Images that differ a lot (SSIM far from 1) and a target with structure the input lacks.
+    x, _ = _pair((20, 23, 3), torch.float64, seed=3)
+    y = torch.zeros(20, 23, 3, dtype=torch.float64)
+    y[5:15, 4:12] = 1.0
+    assert abs(float(ssim_cpu.ssim_cpu(x, y)) - float(_torch_ssim(x, y))) <= 1e-12
+    assert abs(float(ssim_cpu.ssim_cpu(y, x)) - float(_torch_ssim(y, x))) <= 1e-12
+
+
+@pytest.mark.parametrize("shape", [(24, 30, 3), (7, 9, 3), (12, 13), (9, 14, 2)])
+def test_numba_ssim_gradient_matches_torch_autograd(shape):
+    x, y = _pair(shape, torch.float64, seed=7 + shape[0])
+    x_ref = x.clone().requires_grad_(True)
+    (2.5 * _torch_ssim(x_ref, y)).backward()          # a non-unit upstream gradient
+    x_new = x.clone().requires_grad_(True)
+    value = ssim(x_new, y)
+    assert _is_numba_path(value)
+    (2.5 * value).backward()
+    assert x_new.grad.shape == x.shape and x_new.grad.dtype == torch.float64
+    assert float(x_ref.grad.abs().max()) > 1e-4       # the comparison is not between zeros
+    assert torch.allclose(x_new.grad, x_ref.grad, rtol=0, atol=1e-10)
+
+
+def test_numba_ssim_gradient_float32_close_to_torch():
+    x, y = _pair((30, 40, 3), torch.float32, seed=11)
+    x_ref = x.clone().requires_grad_(True)
+    _torch_ssim(x_ref, y).backward()
+    x_new = x.clone().requires_grad_(True)
+    ssim(x_new, y).backward()
+    assert x_new.grad.dtype == torch.float32
+    scale = float(x_ref.grad.abs().max())
+    assert float((x_new.grad - x_ref.grad).abs().max()) <= 1e-4 * scale
+
+
+def test_numba_ssim_gradcheck():
+    x, y = _pair((12, 13, 2), torch.float64, seed=5)
+    x.requires_grad_(True)
+    assert _is_numba_path(ssim(x, y))
+    assert torch.autograd.gradcheck(lambda t: ssim(t, y), (x,))
+    x1, y1 = _pair((8, 9), torch.float64, seed=6)
+    x1.requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda t: ssim(t, y1), (x1,))
+
+
+def test_numba_ssim_non_contiguous_input_and_no_grad():
+    x, y = _pair((16, 18, 4), torch.float64, seed=9)
+    xs, ys = x[..., :3], y[..., :3]                   # strided views, as a colour slice would be
+    assert not xs.is_contiguous()
+    want = _torch_ssim(xs, ys)
+    assert abs(float(ssim_cpu.ssim_cpu(xs, ys)) - float(want)) <= 1e-12
+    with torch.no_grad():
+        xg = x.clone().requires_grad_(True)
+        assert abs(float(ssim(xg[..., :3], ys)) - float(want)) <= 1e-12
+
+
+def test_ssim_dispatch_torch_path_when_target_needs_grad():
+    x, y = _pair((10, 12, 3), torch.float64, seed=13)
+    x.requires_grad_(True)
+    y.requires_grad_(True)
+    value = ssim(x, y)
+    assert not _is_numba_path(value)
+    value.backward()
+    assert y.grad is not None and float(y.grad.abs().max()) > 0
+    assert x.grad is not None
+    # Same value as the Numba path computes without the target's gradient.
+    assert abs(float(value.detach()) - float(ssim_cpu.ssim_cpu(x.detach(), y.detach()))) <= 1e-12
+
+
+def test_ssim_dispatch_torch_path_for_mixed_dtypes_and_other_shapes():
+    x, y = _pair((10, 12, 3), torch.float64, seed=17)
+    assert not _is_numba_path(ssim(x.requires_grad_(True), y.float()))
+    with pytest.raises(ValueError):
+        ssim_cpu.ssim_cpu(torch.rand(4, 4, 3), torch.rand(4, 5, 3))
+    with pytest.raises(ValueError):
+        ssim_cpu.ssim_cpu(torch.rand(4, 4, 3), torch.rand(4, 4, 3, requires_grad=True))

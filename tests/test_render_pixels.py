@@ -76,3 +76,53 @@ def test_pixels_outside_the_image_are_refused():
     g = _scene("mixed", torch.float32)
     with pytest.raises(ValueError, match="inside"):
         render_pixels(g, INTR, np.eye(4), np.array([[INTR.width, 0]]))
+
+
+# ----------------------------------------------------------------------------- tile masks (mapping)
+
+def _tiles_loss_and_grads(g, dtype, backend, tiles):
+    """Colour, depth and alpha of a render with `tiles` (None: all), and the gradients of a random
+    loss over the chosen tiles' pixels."""
+    from splat_core.render import tile_pixels
+    params, q, t = _leaves(g, dtype)
+    out = render(Gaussians(*params), INTR, w2c_from_quat_trans(q, t), backend=backend, near=NEAR,
+                 background=0.25, tiles=tiles)
+    keep = torch.as_tensor(tile_pixels(TILES, INTR.width, INTR.height), dtype=dtype)
+    gen = torch.Generator().manual_seed(4)
+    rand = lambda *s: torch.randn(*s, generator=gen, dtype=torch.float64).to(dtype)  # noqa: E731
+    H, W = INTR.height, INTR.width
+    loss = (((out.color * rand(H, W, 3)).sum(-1) + out.depth * rand(H, W) + out.alpha * rand(H, W)) * keep).sum()
+    inputs = params + [q, t]
+    grads = torch.autograd.grad(loss, inputs, allow_unused=True)
+    return [o.detach() for o in out], [torch.zeros_like(x) if gr is None else gr for x, gr in zip(inputs, grads)]
+
+
+TILES = np.array([[1, 0, 0, 1], [0, 1, 1, 0], [1, 0, 1, 0]], dtype=bool)   # INTR is 4 x 3 tiles
+
+
+@pytest.mark.parametrize("backend", ["cpu", "reference"])
+@pytest.mark.parametrize("case", ["mixed", "layers"])
+def test_tile_mask_draws_the_chosen_tiles_as_the_full_render_does(case, backend):
+    """Chosen tiles equal the full render there (values and the gradient of a loss over them);
+    the others come back empty (background, depth 0, alpha 0)."""
+    from splat_core.render import tile_pixels
+    dtype = torch.float64
+    g = _scene(case, dtype)
+    out_t, grads_t = _tiles_loss_and_grads(g, dtype, backend, TILES)
+    out_f, grads_f = _tiles_loss_and_grads(g, dtype, backend, None)
+    keep = torch.as_tensor(tile_pixels(TILES, INTR.width, INTR.height))
+    assert 0 < int(keep.sum()) < keep.numel()
+    for name, a, b in zip(("color", "depth", "alpha"), out_t, out_f):
+        _assert_close(a[keep], b[keep], 1e-10, f"{case} {name} in the chosen tiles")
+    assert float(out_f[2][~keep].max()) > 0.5, "the scene must reach the tiles left out"
+    assert float(out_t[2][~keep].abs().max()) == 0 and float(out_t[1][~keep].abs().max()) == 0
+    assert torch.allclose(out_t[0][~keep], torch.full_like(out_t[0][~keep], 0.25))
+    for name, a, b in zip(GRAD_NAMES, grads_t, grads_f):
+        _assert_close(a, b, 1e-10, f"{case} d/d{name}")
+    assert float(grads_t[-1].abs().max()) > 0
+
+
+def test_tile_mask_of_the_wrong_shape_is_refused():
+    g = _scene("mixed", torch.float32)
+    with pytest.raises(ValueError, match="tiles"):
+        render(g, INTR, np.eye(4), backend="cpu", tiles=np.ones((2, 2), dtype=bool))

@@ -75,7 +75,8 @@ def test_measure_video_and_export_in_the_page(browser, server, tmp_path):  # noq
         click_at(page, client, B)
         wait_until(lambda: app.measure.distance is not None, 30, what="distance")
         assert abs(app.measure.distance - np.linalg.norm(A - B)) < 0.01
-        assert server.scene.get_handle_by_name("/measure/label") is not None
+        # the distance is set before the line and label are drawn (under the tool's lock): wait for them
+        wait_until(lambda: server.scene.get_handle_by_name("/measure/label") is not None, 10, what="label")
         click_at(page, client, A)                       # a third click starts a new measurement
         wait_until(lambda: len(app.measure.points) == 1 and app.measure.distance is None, 30, what="restart")
         app.measure.enabled.value = False

@@ -67,7 +67,7 @@ class Refiner:
         self.map, self.views, self.intrinsics = gmap, views, intrinsics
         self.loss_config, self.settings = loss, settings.resolved(loss)
         self.scene_radius, self.renderer = scene_radius, renderer
-        self.optimizer = torch.optim.Adam(gmap.param_groups(self.settings.lrs), eps=1e-15)
+        self.optimizer = gmap.adam(self.settings.lrs)
         self.stats = GradientStats(len(gmap), gmap.device)
         self.iteration = 0
         self.last_loss: float | None = None
@@ -115,7 +115,7 @@ class Refiner:
         device, dtype = self.map.device, self.map.dtype
         self.map = GaussianMap.from_numpy({k[4:]: v for k, v in arrays.items() if k.startswith("map_")},
                                           device=device, dtype=dtype)
-        self.optimizer = torch.optim.Adam(self.map.param_groups(self.settings.lrs), eps=1e-15)
+        self.optimizer = self.map.adam(self.settings.lrs)
         for name in PARAM_NAMES:
             if f"adam_{name}_step" in arrays:
                 t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=device)  # noqa: E731

@@ -31,6 +31,17 @@ from .project import frustum_mask, project_gaussians
 from .reference import rasterize_reference
 
 BACKENDS = ("auto", "cpu", "cuda", "reference")
+TILE = 16          # the CPU rasterizer's tile size in pixels; `tiles` masks are on this grid
+
+
+def tile_grid(intrinsics: Intrinsics) -> tuple[int, int]:
+    """(rows, columns) of TILE x TILE tiles covering the image."""
+    return -(-intrinsics.height // TILE), -(-intrinsics.width // TILE)
+
+
+def tile_pixels(tiles: np.ndarray, width: int, height: int) -> np.ndarray:
+    """H x W boolean mask of the pixels in the chosen tiles."""
+    return np.repeat(np.repeat(np.asarray(tiles, dtype=bool), TILE, 0), TILE, 1)[:height, :width]
 
 
 class Render(NamedTuple):
@@ -53,10 +64,15 @@ def resolve_backend(backend: str, device: torch.device) -> str:
 
 
 def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: str = "auto",
-           near: float = 0.01, eps2d: float = 0.3, screen: list | None = None) -> Render:
+           near: float = 0.01, eps2d: float = 0.3, screen: list | None = None,
+           tiles: np.ndarray | None = None) -> Render:
     """`screen`: when a list is given, (means2d, radii) are appended to it: the screen-space centres
     in pixels (their `.grad` is kept by backward; gsplat's are 1 x N x 2) and footprint radii (0 =
-    not drawn). Refinement's densification (3DGS) reads the view-space positional gradient there."""
+    not drawn). Refinement's densification (3DGS) reads the view-space positional gradient there.
+
+    `tiles`: a boolean grid (tile_grid(intrinsics)) of the TILE x TILE pixel tiles to draw; the
+    others come back empty (background, depth 0, alpha 0). The CPU backend skips their work;
+    the other backends render the whole image and blank them (same result)."""
     g = gaussians.tensors() if isinstance(gaussians, GaussianMap) else gaussians
     dtype, device = g.means.dtype, g.means.device
     if not torch.is_tensor(w2c):
@@ -68,6 +84,9 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
     if which == "cuda":
         from .cuda import render_gsplat
         color, depth, alpha = render_gsplat(g, intrinsics, w2c, near=near, eps2d=eps2d, screen=screen)
+        if tiles is not None:
+            keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
+            color, depth, alpha = color * keep[..., None], depth * keep, alpha * keep
     else:
         if len(g) == 0:
             z = torch.zeros(H, W, dtype=dtype, device=device)
@@ -78,11 +97,15 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
             screen.append((p.means2d, p.radii))
         features = torch.cat([g.colors, p.depths[:, None]], dim=1)
         if which == "cpu":
-            from .cpu import rasterize_cpu as rasterize
+            from .cpu import rasterize_cpu
+            image, alpha = rasterize_cpu(p.means2d, p.conics, p.opacities, features, p.depths.detach(),
+                                         p.radii, W, H, tiles)
         else:
-            rasterize = rasterize_reference
-        image, alpha = rasterize(p.means2d, p.conics, p.opacities, features, p.depths.detach(),
-                                 p.radii, W, H)
+            image, alpha = rasterize_reference(p.means2d, p.conics, p.opacities, features, p.depths.detach(),
+                                               p.radii, W, H)
+            if tiles is not None:
+                keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
+                image, alpha = image * keep[..., None], alpha * keep
         color, depth = image[..., :3], image[..., 3]
     color = color + (1.0 - alpha)[..., None] * bg
     return Render(color, depth, alpha)
@@ -123,9 +146,10 @@ class Renderer:
     near: float = 0.01
     backend: str = "auto"
 
-    def render(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, screen: list | None = None) -> Render:
+    def render(self, gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, screen: list | None = None,
+               tiles: np.ndarray | None = None) -> Render:
         return render(gaussians, intrinsics, w2c, background=background, backend=self.backend, near=self.near,
-                      screen=screen)
+                      screen=screen, tiles=tiles)
 
     def pixels(self, gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=0.0) -> Render:
         return render_pixels(gaussians, intrinsics, w2c, pixels, background=background, backend=self.backend,

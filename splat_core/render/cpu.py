@@ -47,9 +47,9 @@ from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
 from ..parallel import numba_lock
+from . import TILE
 from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
 
-TILE = 16
 LANES = 8        # a tile row is processed as TILE // LANES vectorised groups of LANES pixels
 # The bounding boxes solve q(d) <= K * (1 + SPAN_SLACK) + SPAN_SLACK, a little more than the exact
 # cutoff, so that rounding in the box arithmetic never drops a pixel the per-pixel test would keep.
@@ -76,9 +76,8 @@ last_stats: dict = {}   # what the most recent forward / backward measured (for 
 # ----------------------------------------------------------------------------- kernels
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, consts, params,
-                       boxes, tile_counts):
-    """Per depth-sorted live Gaussian: packed parameters, covered pixel box and tile count.
+def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts, params, boxes):
+    """Per depth-sorted live Gaussian: packed parameters and covered pixel box.
 
     boxes[j] = (x0, x1, y0, y1) inclusive pixel bounds; x0 > x1 when nothing can be covered.
     """
@@ -108,7 +107,6 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, c
         boxes[j, 1] = -1
         boxes[j, 2] = 0
         boxes[j, 3] = -1
-        tile_counts[j] = 0
         params[j, _P_K] = zero
         params[j, _P_DET] = zero
         # alpha <= o everywhere (exp(power) <= 1 where power <= 0): below 1/255 it never counts.
@@ -148,29 +146,34 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, tile, c
         boxes[j, 1] = x1
         boxes[j, 2] = y0
         boxes[j, 3] = y1
-        tile_counts[j] = (x1 // tile - x0 // tile + 1) * (y1 // tile - y0 // tile + 1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
+def _bin_to_tiles(boxes, tile, ntx, nty, tile_mask):
     """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
 
-    Returns tile_offsets (ntiles + 1), isect_gauss (sorted Gaussian index per intersection) and
-    gauss_slots (for each Gaussian, in its own order, the intersections that belong to it).
+    Only tiles with tile_mask[t] != 0 get lists (the others render empty). Returns gauss_offsets
+    (L + 1: each Gaussian's intersections), tile_offsets (ntiles + 1), isect_gauss (sorted
+    Gaussian index per intersection) and gauss_slots (for each Gaussian, in its own order, the
+    intersections that belong to it).
     """
     L = boxes.shape[0]
     ntiles = ntx * nty
-    n = gauss_offsets[L]
     tile_offsets = np.zeros(ntiles + 1, dtype=np.int64)
+    gauss_offsets = np.zeros(L + 1, dtype=np.int64)
     for j in range(L):
         x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
-        if x0 > x1:
-            continue
-        for ty in range(y0 // tile, y1 // tile + 1):
-            for tx in range(x0 // tile, x1 // tile + 1):
-                tile_offsets[ty * ntx + tx + 1] += 1
+        count = 0
+        if x0 <= x1:
+            for ty in range(y0 // tile, y1 // tile + 1):
+                for tx in range(x0 // tile, x1 // tile + 1):
+                    if tile_mask[ty * ntx + tx]:
+                        tile_offsets[ty * ntx + tx + 1] += 1
+                        count += 1
+        gauss_offsets[j + 1] = gauss_offsets[j] + count
     for t in range(ntiles):
         tile_offsets[t + 1] += tile_offsets[t]
+    n = gauss_offsets[L]
     cursor = tile_offsets[:-1].copy()
     isect_gauss = np.empty(n, dtype=np.int32)
     gauss_slots = np.empty(n, dtype=np.int64)
@@ -182,12 +185,14 @@ def _bin_to_tiles(boxes, gauss_offsets, tile, ntx, nty):
         for ty in range(y0 // tile, y1 // tile + 1):
             for tx in range(x0 // tile, x1 // tile + 1):
                 t = ty * ntx + tx
+                if not tile_mask[t]:
+                    continue
                 pos = cursor[t]
                 cursor[t] = pos + 1
                 isect_gauss[pos] = j
                 gauss_slots[m] = pos
                 m += 1
-    return tile_offsets, isect_gauss, gauss_slots
+    return gauss_offsets, tile_offsets, isect_gauss, gauss_slots
 
 
 @intrinsic
@@ -585,39 +590,71 @@ def _feature_blocks(features_sorted: np.ndarray) -> list[np.ndarray]:
     return [np.ascontiguousarray(padded[:, 4 * i:4 * i + 4]) for i in range(nb)]
 
 
-def _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats):
-    """Depth sort, per-Gaussian boxes and tile lists (torch in, _Binned out)."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def _touches_tiles(boxes, tile, ntx, tile_mask):
+    """True for the boxes that overlap at least one chosen tile."""
+    out = np.zeros(boxes.shape[0], dtype=np.bool_)
+    for j in range(boxes.shape[0]):
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+        if x0 > x1:
+            continue
+        for ty in range(y0 // tile, y1 // tile + 1):
+            for tx in range(x0 // tile, x1 // tile + 1):
+                if tile_mask[ty * ntx + tx]:
+                    out[j] = True
+    return out
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _gather_sorted(pick, live, params, boxes, order, params_out, boxes_out):
+    """Rows `pick` of (live, params, boxes), in that order (numpy's fancy indexing is serial)."""
+    for j in prange(pick.shape[0]):
+        i = pick[j]
+        order[j] = live[i]
+        for q in range(params.shape[1]):
+            params_out[j, q] = params[i, q]
+        for q in range(4):
+            boxes_out[j, q] = boxes[i, q]
+
+
+def _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats, tiles=None):
+    """Per-Gaussian boxes, depth sort and tile lists (torch in, _Binned out); `tiles`: see rasterize_cpu.
+
+    Only Gaussians whose box reaches a chosen tile (every tile without `tiles`) are sorted and binned."""
     t0 = time.perf_counter()
-    radii_np = radii.detach().cpu().numpy()
-    live = np.flatnonzero(radii_np > 0)
-    depth_np = depths.detach().cpu().numpy()[live]
+    b = _Binned()
+    b.n = means2d.shape[0]
+    b.consts = _consts(dtype, width, height)
+    b.width, b.height = int(width), int(height)
+    b.ntx = (b.width + TILE - 1) // TILE
+    nty = (b.height + TILE - 1) // TILE
+    if tiles is None:
+        mask = np.ones(b.ntx * nty, dtype=np.uint8)
+    else:
+        mask = np.ascontiguousarray(np.asarray(tiles, dtype=np.uint8).reshape(-1))
+        if mask.shape[0] != b.ntx * nty:
+            raise ValueError(f"tiles: expected {nty} x {b.ntx} tiles of {TILE} px, got {np.shape(tiles)}")
+    live = np.flatnonzero(radii.detach().cpu().numpy() > 0)
+    params = np.empty((live.shape[0], _P_WIDTH), dtype=dtype)
+    boxes = np.empty((live.shape[0], 4), dtype=np.int64)
+    _prepare_gaussians(live, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
+                       b.width, b.height, b.consts, params, boxes)
+    drawn = np.flatnonzero((boxes[:, 0] <= boxes[:, 1]) if tiles is None else _touches_tiles(boxes, TILE, b.ntx, mask))
+    depth_np = depths.detach().cpu().numpy()[live[drawn]]
     key = depth_np
     if depth_np.dtype in (np.float32, np.float64) and bool((depth_np > 0).all()):
         # Positive IEEE floats sort like their bit patterns read as integers, and numpy's
         # stable integer sort is faster than its float one (same order, ties by index).
         key = depth_np.view(np.int32 if depth_np.dtype == np.float32 else np.int64)
-    order = live[np.argsort(key, kind="stable")].astype(np.int64)
-    b = _Binned()
-    b.n = means2d.shape[0]
-    b.order = order
-    b.consts = _consts(dtype, width, height)
-    b.width, b.height = int(width), int(height)
-    b.ntx = (b.width + TILE - 1) // TILE
-    nty = (b.height + TILE - 1) // TILE
-    L = order.shape[0]
+    pick = drawn[np.argsort(key, kind="stable")]       # positions in `live`, front to back
+    L = pick.shape[0]
+    b.order, b.params, b.boxes = np.empty(L, np.int64), np.empty((L, _P_WIDTH), dtype), np.empty((L, 4), np.int64)
+    _gather_sorted(pick, live, params, boxes, b.order, b.params, b.boxes)
     if features is not None:
         b.nch = features.shape[1]
-        b.blocks = _feature_blocks(_np(features, dtype)[order])
+        b.blocks = _feature_blocks(_np(features, dtype)[b.order])
     t1 = time.perf_counter()
-    b.params = np.empty((L, _P_WIDTH), dtype=dtype)
-    b.boxes = np.empty((L, 4), dtype=np.int64)
-    counts = np.empty(L, dtype=np.int64)
-    _prepare_gaussians(order, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
-                       b.width, b.height, TILE, b.consts, b.params, b.boxes, counts)
-    b.gauss_offsets = np.zeros(L + 1, dtype=np.int64)
-    np.cumsum(counts, out=b.gauss_offsets[1:])
-    b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, b.gauss_offsets, TILE,
-                                                                  b.ntx, nty)
+    b.gauss_offsets, b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, TILE, b.ntx, nty, mask)
     # Pixel coordinates in the working dtype, padded to whole tiles (lanes past the edge).
     b.xs = np.arange(b.ntx * TILE, dtype=dtype)
     b.ys = np.arange(nty * TILE, dtype=dtype)
@@ -654,11 +691,11 @@ def count_intersections(means2d, conics, opacities, radii, width: int, height: i
     return int(b.gauss_offsets[-1])
 
 
-def _forward(means2d, conics, opacities, features, depths, radii, width, height):
+def _forward(means2d, conics, opacities, features, depths, radii, width, height, tiles=None):
     dtype = _working_dtype(means2d)
     stats = {}
     with numba_lock():
-        b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats)
+        b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, stats, tiles)
         H, W = b.height, b.width
         t0 = time.perf_counter()
         images = []
@@ -721,9 +758,9 @@ def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
 
 class _RasterizeCPU(torch.autograd.Function):
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height):
+    def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, tiles):
         image, alpha, binned = _forward(means2d, conics, opacities, features, depths, radii,
-                                        width, height)
+                                        width, height, tiles)
         ctx.binned = binned
         ctx.like = (means2d.dtype, means2d.device)
         dtype, device = ctx.like
@@ -739,15 +776,17 @@ class _RasterizeCPU(torch.autograd.Function):
         ga = np.zeros((H, W), dtype=wd) if grad_alpha is None else _np(grad_alpha, wd)
         g = _backward(b, gi, ga)
         g_m, g_q, g_o, g_f = (torch.from_numpy(x).to(device, dtype) for x in g)
-        return g_m, g_q, g_o, g_f, None, None, None, None
+        return g_m, g_q, g_o, g_f, None, None, None, None, None
 
 
-def rasterize_cpu(means2d, conics, opacities, features, depths, radii, width, height):
+def rasterize_cpu(means2d, conics, opacities, features, depths, radii, width, height, tiles=None):
     """Composite screen-space Gaussians front to back (same contract as `rasterize_reference`).
 
     means2d N x 2, conics N x 3, opacities N, features N x C, depths N (sort key only), radii N
     (0 = culled). Returns (H x W x C feature image, H x W accumulated alpha). Differentiable
     w.r.t. means2d, conics, opacities and features.
+    tiles: None, or a boolean grid (ceil(H / TILE) x ceil(W / TILE)) of the TILE x TILE pixel
+    tiles to composite; the others come back empty (features 0, alpha 0) and cost nothing.
     """
     return _RasterizeCPU.apply(means2d, conics, opacities, features, depths, radii,
-                               int(width), int(height))
+                               int(width), int(height), tiles)

@@ -1,7 +1,10 @@
-"""Projection of 3D Gaussians to 2D screen-space Gaussians (EWA splatting), in torch autograd.
+"""Projection of 3D Gaussians to 2D screen-space Gaussians (EWA splatting).
 
-Shared by the CPU and reference backends, so gradients to means, scales, rotations, opacities
-and the camera pose come from torch; the rasterizers only differentiate the compositing.
+Shared by the CPU and reference backends; the rasterizers only differentiate the compositing.
+`project_gaussians_torch` is the definition, in torch autograd (gradients to means, scales,
+rotations, opacities and the camera pose). `project_gaussians` runs isotropic Gaussians in CPU
+tensors through project_cpu.py instead (one Numba kernel forward, one backward: the same values
+and gradients, without ~100 small torch ops per call) and everything else through the torch code.
 """
 
 from __future__ import annotations
@@ -40,8 +43,27 @@ def covariance_world(g: Gaussians) -> torch.Tensor | None:
     return M @ M.transpose(1, 2)
 
 
+def clamp_limits(intr: Intrinsics) -> tuple[float, float, float, float]:
+    """(lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos): the Jacobian is evaluated with x/z clamped to
+    [-lim_x_neg, lim_x_pos] and y/z to [-lim_y_neg, lim_y_pos], a margin around the frustum."""
+    fx, fy, cx, cy = intr.fx, intr.fy, intr.cx, intr.cy
+    return (cx / fx + 0.3 * intr.width / fx, (intr.width - cx) / fx + 0.3 * intr.width / fx,
+            cy / fy + 0.3 * intr.height / fy, (intr.height - cy) / fy + 0.3 * intr.height / fy)
+
+
 def project_gaussians(g: Gaussians, intr: Intrinsics, w2c: torch.Tensor, *,
                       near: float = 0.01, eps2d: float = 0.3) -> Projected:
+    """Screen-space Gaussians for camera w2c (4 x 4). Isotropic Gaussians in CPU float32 / float64
+    tensors go through the fused Numba kernels of project_cpu.py; everything else through
+    `project_gaussians_torch` (the reference: both give the same values and gradients)."""
+    from . import project_cpu
+    if project_cpu.supported(g, w2c):
+        return project_cpu.project_isotropic_cpu(g, intr, w2c, near=near, eps2d=eps2d)
+    return project_gaussians_torch(g, intr, w2c, near=near, eps2d=eps2d)
+
+
+def project_gaussians_torch(g: Gaussians, intr: Intrinsics, w2c: torch.Tensor, *,
+                            near: float = 0.01, eps2d: float = 0.3) -> Projected:
     R, t = w2c[:3, :3], w2c[:3, 3]
     p = g.means @ R.T + t                                   # camera-space centres
     x, y, z = p.unbind(-1)
@@ -54,10 +76,7 @@ def project_gaussians(g: Gaussians, intr: Intrinsics, w2c: torch.Tensor, *,
 
     # The Jacobian is evaluated with x/z, y/z clamped to a margin around the frustum (as in 3DGS
     # and gsplat): Gaussians far outside the image otherwise get huge, meaningless footprints.
-    lim_x_pos = (intr.width - cx) / fx + 0.3 * intr.width / fx
-    lim_x_neg = cx / fx + 0.3 * intr.width / fx
-    lim_y_pos = (intr.height - cy) / fy + 0.3 * intr.height / fy
-    lim_y_neg = cy / fy + 0.3 * intr.height / fy
+    lim_x_neg, lim_x_pos, lim_y_neg, lim_y_pos = clamp_limits(intr)
     tx = torch.clamp(x / z_safe, -lim_x_neg, lim_x_pos) * z_safe
     ty = torch.clamp(y / z_safe, -lim_y_neg, lim_y_pos) * z_safe
     zero = torch.zeros_like(z)
