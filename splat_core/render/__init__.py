@@ -84,9 +84,6 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
     if which == "cuda":
         from .cuda import render_gsplat
         color, depth, alpha = render_gsplat(g, intrinsics, w2c, near=near, eps2d=eps2d, screen=screen)
-        if tiles is not None:
-            keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
-            color, depth, alpha = color * keep[..., None], depth * keep, alpha * keep
     else:
         if len(g) == 0:
             z = torch.zeros(H, W, dtype=dtype, device=device)
@@ -103,10 +100,10 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
         else:
             image, alpha = rasterize_reference(p.means2d, p.conics, p.opacities, features, p.depths.detach(),
                                                p.radii, W, H)
-            if tiles is not None:
-                keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
-                image, alpha = image * keep[..., None], alpha * keep
         color, depth = image[..., :3], image[..., 3]
+    if tiles is not None and which != "cpu":     # the CPU rasterizer left the other tiles empty itself
+        keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
+        color, depth, alpha = color * keep[..., None], depth * keep, alpha * keep
     color = color + (1.0 - alpha)[..., None] * bg
     return Render(color, depth, alpha)
 

@@ -77,7 +77,7 @@ last_stats: dict = {}   # what the most recent forward / backward measured (for 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts, params, boxes):
-    """Per depth-sorted live Gaussian: packed parameters and covered pixel box.
+    """Per live Gaussian (order[j]: its index): packed parameters and covered pixel box.
 
     boxes[j] = (x0, x1, y0, y1) inclusive pixel bounds; x0 > x1 when nothing can be covered.
     """
