@@ -43,7 +43,22 @@ class View:
 def mapping_loss(rendered, view: View, config: MappingConfig, pixels: torch.Tensor | None = None):
     """The loss above; `pixels` (H x W bool): over those pixels only (the tiles an iteration drew).
     SSIM then compares the drawn pixels set into the observed image (the rest match exactly, so
-    they add nothing but their window's overlap with drawn pixels), scaled by H W / drawn pixels."""
+    they add nothing but their window's overlap with drawn pixels), scaled by H W / drawn pixels.
+
+    CPU tensors of one float dtype run `mapping_loss_cpu` (same value and gradient, one autograd
+    step instead of a dozen); anything else the torch definition below."""
+    tensors = (rendered.color, rendered.depth, view.color, view.depth)
+    if (all(t.device.type == "cpu" and t.dtype == rendered.color.dtype for t in tensors)
+            and rendered.color.dtype in (torch.float32, torch.float64)
+            and not (view.color.requires_grad or view.depth.requires_grad)):
+        from .mapping_loss_cpu import mapping_loss_cpu
+        return mapping_loss_cpu(*tensors, None if pixels is None else pixels.cpu(), config.depth_weight,
+                                config.color_weight, config.ssim_weight)
+    return _mapping_loss_torch(rendered, view, config, pixels)
+
+
+def _mapping_loss_torch(rendered, view: View, config: MappingConfig, pixels: torch.Tensor | None = None):
+    """`mapping_loss` in torch (the definition; CUDA, and the CPU path's reference in tests)."""
     valid = view.depth > 0
     if pixels is not None:
         valid = valid & pixels

@@ -248,40 +248,55 @@ def _consts(dtype, scale: float = 0.0) -> np.ndarray:
     return c
 
 
-def _rows(t: torch.Tensor) -> np.ndarray:
-    """H x W x C (or H x W) tensor -> H x (W C) C-contiguous numpy array (a view when possible)."""
-    a = np.ascontiguousarray(t.detach().numpy())
+def ssim_np(x: np.ndarray, y: np.ndarray, want_grad: bool):
+    """Mean SSIM of x against the target y (numpy, H x W x C or H x W, one float dtype) and, when
+    want_grad, the per-pixel partials that `ssim_grad_np` needs (else None)."""
+    C = 1 if x.ndim == 2 else x.shape[2]
+    x, y = _rows(x), _rows(y)
+    dtype = x.dtype.type
+    H, L = x.shape
+    g = _TAPS.get(dtype)
+    if g is None:
+        g = _TAPS[dtype] = _taps(dtype)
+    hbuf = np.empty((5, H + 2 * HALF, L), dtype=dtype)
+    rowsum = np.empty(H, dtype=np.float64)
+    if want_grad:
+        d_mu, d_xx, d_xy = (np.empty((H, L), dtype=dtype) for _ in range(3))
+    else:
+        d_mu = d_xx = d_xy = np.empty((0, 0), dtype=dtype)
+    with numba_lock():
+        _forward_kernel(x, y, C, g, _consts(dtype), want_grad, hbuf, rowsum, d_mu, d_xx, d_xy)
+    return float(rowsum.sum()) / x.size, ((d_mu, d_xx, d_xy) if want_grad else None)
+
+
+def ssim_grad_np(x: np.ndarray, y: np.ndarray, partials, scale: float) -> np.ndarray:
+    """scale * d mean SSIM / dx, shaped like x (partials from `ssim_np(x, y, True)`)."""
+    shape, C = x.shape, 1 if x.ndim == 2 else x.shape[2]
+    x, y = _rows(x), _rows(y)
+    dtype = x.dtype.type
+    H, L = x.shape
+    out = np.empty((H, L), dtype=dtype)
+    hbuf = np.empty((3, H + 2 * HALF, L), dtype=dtype)
+    with numba_lock():
+        _backward_kernel(x, y, *partials, C, _TAPS[dtype], _consts(dtype, scale / x.size), hbuf, out)
+    return out.reshape(shape)
+
+
+def _rows(a: np.ndarray) -> np.ndarray:
+    """H x W x C (or H x W) array -> H x (W C) C-contiguous array (a view when possible)."""
+    a = np.ascontiguousarray(a)
     return a.reshape(a.shape[0], -1)
-
-
-def _channels(t: torch.Tensor) -> int:
-    return 1 if t.dim() == 2 else int(t.shape[2])
 
 
 class _SSIMCPU(torch.autograd.Function):
     @staticmethod
     def forward(ctx, img1, img2, want_grad):
-        x, y = _rows(img1), _rows(img2)
-        dtype = x.dtype.type
-        H, L = x.shape
-        C = _channels(img1)
-        g = _TAPS.get(dtype)
-        if g is None:
-            g = _TAPS[dtype] = _taps(dtype)
-        hbuf = np.empty((5, H + 2 * HALF, L), dtype=dtype)
-        rowsum = np.empty(H, dtype=np.float64)
-        if want_grad:
-            d_mu, d_xx, d_xy = (np.empty((H, L), dtype=dtype) for _ in range(3))
-        else:
-            d_mu = d_xx = d_xy = np.empty((0, 0), dtype=dtype)
-        with numba_lock():
-            _forward_kernel(x, y, C, g, _consts(dtype), want_grad, hbuf, rowsum, d_mu, d_xx, d_xy)
-        n = x.size
+        x, y = img1.detach().numpy(), img2.detach().numpy()
+        value, partials = ssim_np(x, y, want_grad)
         if want_grad:
             ctx.save_for_backward(img1, img2)
-            ctx.partials = (d_mu, d_xx, d_xy)
-            ctx.n = n
-        return torch.tensor(float(rowsum.sum()) / n, dtype=img1.dtype)
+            ctx.partials = partials
+        return torch.tensor(value, dtype=img1.dtype)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
@@ -289,17 +304,8 @@ class _SSIMCPU(torch.autograd.Function):
         if not ctx.needs_input_grad[0]:
             return None, None, None
         img1, img2 = ctx.saved_tensors
-        x, y = _rows(img1), _rows(img2)
-        dtype = x.dtype.type
-        H, L = x.shape
-        d_mu, d_xx, d_xy = ctx.partials
-        out = np.empty((H, L), dtype=dtype)
-        hbuf = np.empty((3, H + 2 * HALF, L), dtype=dtype)
-        consts = _consts(dtype, float(grad_out) / ctx.n)
-        with numba_lock():
-            _backward_kernel(x, y, d_mu, d_xx, d_xy, _channels(img1), _TAPS[dtype], consts, hbuf,
-                             out)
-        return torch.from_numpy(out).view(img1.shape), None, None
+        grad = ssim_grad_np(img1.detach().numpy(), img2.detach().numpy(), ctx.partials, float(grad_out))
+        return torch.from_numpy(grad), None, None
 
 
 def ssim_cpu(img1: torch.Tensor, img2: torch.Tensor) -> torch.Tensor:

@@ -487,3 +487,36 @@ def test_keyframes_spill_without_a_run_folder():
     assert np.abs(kf.color - f.color).max() <= 0.5 / 255 + 1e-7
     store.close()                                                             # back in memory, still readable
     assert kf.resident and np.abs(kf.color - f.color).max() <= 0.5 / 255 + 1e-7
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("drawn", [False, True])
+def test_cpu_mapping_loss_equals_the_torch_definition(dtype, drawn):
+    """mapping_loss on CPU tensors (mapping_loss_cpu: one autograd step) has the value and the
+    gradients of the torch definition, with and without drawn tiles, with pixels without depth
+    and residuals that are exactly 0 (|x| has gradient 0 there, as in torch)."""
+    from splat_core.mapping import _mapping_loss_torch, draw_tiles, mapping_loss
+    from splat_core.render import Render
+    g = torch.Generator().manual_seed(0)
+    H, W = 48, 64
+    view = View(torch.rand(H, W, 3, generator=g, dtype=dtype), 1 + torch.rand(H, W, generator=g, dtype=dtype), np.eye(4))
+    view.depth[:10, :20] = 0                                   # no depth here
+    color = torch.rand(H, W, 3, generator=g, dtype=dtype)
+    depth = 1 + torch.rand(H, W, generator=g, dtype=dtype)
+    color[5, 5] = view.color[5, 5]                             # exact matches: zero residuals
+    depth[30, 30] = view.depth[30, 30]
+    intr = Intrinsics(fx=60.0, fy=60.0, cx=32.0, cy=24.0, width=W, height=H)
+    pixels = draw_tiles(intr, 0.5, np.random.default_rng(1))[1] if drawn else None
+    cfg = MappingConfig()
+    results = []
+    for loss_fn in (mapping_loss, _mapping_loss_torch):
+        c, d = color.clone().requires_grad_(), depth.clone().requires_grad_()
+        loss = loss_fn(Render(c, d, torch.ones(H, W, dtype=dtype)), view, cfg, pixels)
+        loss.backward()
+        results.append((float(loss), c.grad, d.grad))
+    (v_cpu, gc_cpu, gd_cpu), (v_ref, gc_ref, gd_ref) = results
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    assert v_cpu == pytest.approx(v_ref, rel=tol)
+    assert torch.allclose(gc_cpu, gc_ref, rtol=tol, atol=tol * float(gc_ref.abs().max()))
+    assert torch.equal(gd_cpu, gd_ref) or torch.allclose(gd_cpu, gd_ref, rtol=tol, atol=0)
+    assert gd_cpu[30, 30] == 0 and bool((gd_cpu[:10, :20] == 0).all())

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from splat_core.camera import w2c_from_quat_trans
+from splat_core.camera import Intrinsics, quat_to_rotmat_np, w2c_from_quat_trans
 from splat_core.gaussians import Gaussians
 from splat_core.render import project as project_mod
 from splat_core.render.project import clamp_limits, project_gaussians, project_gaussians_torch
@@ -318,3 +318,24 @@ def test_no_grad_and_empty():
     p = project_gaussians(Gaussians(e(0, 3), e(0, 3), e(0, 4), e(0), e(0, 1)), INTR,
                           torch.eye(4, dtype=torch.float64), near=NEAR)
     assert p.means2d.shape == (0, 2) and p.conics.shape == (0, 3) and p.radii.shape == (0,)
+
+
+@pytest.mark.parametrize("scales", [1, 3])
+def test_frustum_mask_cpu_equals_torch(scales):
+    """The Numba frustum test keeps exactly the Gaussians the torch definition keeps: points in
+    front, behind, beside the image and large ones reaching in from outside."""
+    from splat_core.render.project import frustum_mask_torch
+    from splat_core.render.project_cpu import frustum_mask_cpu
+    rng = np.random.default_rng(scales)
+    n = 20_000
+    means = torch.as_tensor(rng.uniform([-6, -5, -3], [6, 5, 8], (n, 3)), dtype=torch.float32)
+    log_scales = torch.as_tensor(rng.uniform(-6, 0.5, (n, scales)), dtype=torch.float32)
+    intr = Intrinsics(fx=300.0, fy=290.0, cx=160.0, cy=120.0, width=320, height=240)
+    w2c = np.eye(4)
+    w2c[:3, :3] = quat_to_rotmat_np(rng.normal(size=4))
+    w2c[:3, 3] = rng.normal(size=3)
+    for margin in (0.0, 0.1):
+        ref = frustum_mask_torch(means, log_scales, intr, w2c, 0.01, margin)
+        got = frustum_mask_cpu(means, log_scales, intr, w2c, 0.01, margin)
+        assert 0.05 * n < int(ref.sum()) < 0.95 * n
+        assert torch.equal(got, ref)

@@ -121,7 +121,17 @@ def project_gaussians_torch(g: Gaussians, intr: Intrinsics, w2c: torch.Tensor, *
 
 def frustum_mask(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics, w2c: np.ndarray,
                  near: float, margin: float = 0.1) -> torch.Tensor:
-    """Gaussians whose 3.5-sigma footprint may touch the image (plus a margin); conservative."""
+    """Gaussians whose 3.5-sigma footprint may touch the image (plus a margin); conservative.
+    CPU tensors take project_cpu.frustum_mask_cpu (one Numba pass, float64; the same test)."""
+    if means.device.type == "cpu" and means.dim() == 2 and len(means):
+        from .project_cpu import frustum_mask_cpu
+        return frustum_mask_cpu(means, log_scales, intr, w2c, near, margin)
+    return frustum_mask_torch(means, log_scales, intr, w2c, near, margin)
+
+
+def frustum_mask_torch(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics, w2c: np.ndarray,
+                       near: float, margin: float = 0.1) -> torch.Tensor:
+    """`frustum_mask` in torch (the definition; CUDA)."""
     with torch.no_grad():
         R = torch.as_tensor(w2c[:3, :3], dtype=means.dtype, device=means.device)
         t = torch.as_tensor(w2c[:3, 3], dtype=means.dtype, device=means.device)

@@ -393,6 +393,39 @@ class _ProjectIsotropicCPU(torch.autograd.Function):
         return grad_means, grad_ls, grad_lg, grad_w2c, None
 
 
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _frustum_kernel(means, log_scales, R, t, fx, fy, cx, cy, width, height, near, mx, my, out):
+    """`project.frustum_mask` per Gaussian (same formulas, in float64)."""
+    for i in prange(means.shape[0]):
+        x = R[0, 0] * means[i, 0] + R[0, 1] * means[i, 1] + R[0, 2] * means[i, 2] + t[0]
+        y = R[1, 0] * means[i, 0] + R[1, 1] * means[i, 1] + R[1, 2] * means[i, 2] + t[1]
+        z = R[2, 0] * means[i, 0] + R[2, 1] * means[i, 1] + R[2, 2] * means[i, 2] + t[2]
+        zs = max(z, near)
+        s = log_scales[i, 0]
+        for k in range(1, log_scales.shape[1]):
+            s = max(s, log_scales[i, k])
+        extent = 3.5 * np.exp(s)
+        X = x / zs
+        Y = y / zs
+        u = fx * X + cx
+        v = fy * Y + cy
+        r = extent * max(fx, fy) / zs * np.sqrt(1 + X * X + Y * Y) + 2.0
+        out[i] = ((z + extent > near) and u + r > -mx and u - r < width + mx
+                  and v + r > -my and v - r < height + my)
+
+
+def frustum_mask_cpu(means: torch.Tensor, log_scales: torch.Tensor, intr: Intrinsics, w2c: np.ndarray,
+                     near: float, margin: float) -> torch.Tensor:
+    """`project.frustum_mask` for CPU tensors: one pass (the torch version is ~20 passes over the map)."""
+    w2c = np.asarray(w2c, dtype=np.float64)
+    out = np.empty(means.shape[0], dtype=np.bool_)
+    with numba_lock():
+        _frustum_kernel(means.detach().numpy(), log_scales.detach().numpy(), w2c[:3, :3].copy(), w2c[:3, 3].copy(),
+                        float(intr.fx), float(intr.fy), float(intr.cx), float(intr.cy), float(intr.width),
+                        float(intr.height), float(near), margin * intr.width, margin * intr.height, out)
+    return torch.from_numpy(out)
+
+
 def supported(g, w2c: torch.Tensor) -> bool:
     """Whether `project_isotropic_cpu` handles these inputs: isotropic Gaussians, CPU tensors of one
     dtype, float32 or float64, w2c 4 x 4."""
