@@ -2,12 +2,13 @@
 
     python benchmarks/refine.py RUN_DIR[=CAPTURE] ... [--iterations 1000] [--resolution capture|working]
                                 [--lrs '{"colors": 0.01}'] [--density '{"grad_threshold": 0.0002}']
+                                [--anisotropic] [--densify-until N]
 
 Each run is refined in place (map_refined.ply and metrics.json's refine section, as `splatam
 refine` writes them; an interrupted refine's checkpoint is discarded first). `=CAPTURE` names the
 capture of a run that does not record it. --lrs and --density override RefineSettings' Adam
 learning rates (default: RefineSettings', the run's mapping rates with REFINE_LRS over them) and
-density control.
+density control; --anisotropic and --densify-until set those RefineSettings fields.
 """
 
 from __future__ import annotations
@@ -48,11 +49,14 @@ def main() -> None:
     p.add_argument("--resolution", default="capture", choices=["capture", "working"])
     p.add_argument("--lrs", type=json.loads, default=None, help="JSON: learning rates to override")
     p.add_argument("--density", type=json.loads, default={}, help="JSON: DensitySettings fields to override")
+    p.add_argument("--anisotropic", action="store_true", help="RefineSettings.anisotropic")
+    p.add_argument("--densify-until", type=int, default=None, help="RefineSettings.densify_until")
     p.add_argument("--device", default="cpu")
     args = p.parse_args()
     results = []
     for run in args.runs:
-        base = RefineSettings(iterations=args.iterations, density=DensitySettings(**args.density))
+        base = RefineSettings(iterations=args.iterations, density=DensitySettings(**args.density),
+                              anisotropic=args.anisotropic, densify_until=args.densify_until)
         if args.lrs:
             from splat_core.refine.run_data import load_run_data
             mapping = load_run_data(run.partition("=")[0]).config.mapping

@@ -115,6 +115,13 @@ class GaussianMap:
         except (RuntimeError, TypeError):
             return torch.optim.Adam(self.param_groups(lrs), eps=1e-15)
 
+    def anisotropic(self) -> "GaussianMap":
+        """A copy with three scales per Gaussian (an isotropic one's tiled: the same Gaussians)."""
+        n = len(self)
+        values = [self.params[name].detach() for name in PARAM_NAMES]
+        values[PARAM_NAMES.index("log_scales")] = values[PARAM_NAMES.index("log_scales")].expand(n, 3)
+        return GaussianMap(*values, self.birth_frame)
+
     # ------------------------------------------------------------------ editing
     def append(self, other: "GaussianMap", optimizer: torch.optim.Optimizer | None = None) -> None:
         """Add `other`'s Gaussians; zero Adam moments are appended for them if an optimiser is given."""

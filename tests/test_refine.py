@@ -83,8 +83,9 @@ def test_working_resolution_uses_the_stored_keyframes(run):
         assert np.array_equal(view.color.numpy(), kf.color) and np.array_equal(view.w2c, kf.w2c)
 
 
-def test_resume_equals_an_uninterrupted_refine(run, tmp_path):
-    settings = RefineSettings(iterations=30, **FAST)
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_resume_equals_an_uninterrupted_refine(run, tmp_path, anisotropic):
+    settings = RefineSettings(iterations=30, anisotropic=anisotropic, **FAST)
     other = tmp_path / "other"
     shutil.copytree(run, other)
     full = RefineJob(run, settings, checkpoint_every=0)
@@ -110,6 +111,23 @@ def test_resume_equals_an_uninterrupted_refine(run, tmp_path):
         again.step()
     with pytest.raises(Exception, match="--restart"):
         RefineJob(other, RefineSettings(iterations=40, **FAST))
+
+
+def test_anisotropic_refine_starts_from_the_same_gaussians_and_shapes_them(run, capsys):
+    """`splatam refine --anisotropic`: the isotropic SLAM map gets three scales (the same Gaussians:
+    held-out metrics before refining equal the isotropic map's), which the refine then shapes."""
+    iso = RefineJob(run, RefineSettings(iterations=40), checkpoint_every=0).evaluate()
+    aniso = RefineJob(run, RefineSettings(iterations=40, anisotropic=True), checkpoint_every=0)
+    assert aniso.refiner.map.log_scales.shape[1] == 3
+    assert aniso.evaluate()["psnr"] == pytest.approx(iso["psnr"], abs=1e-3)
+    code, out, err = cli(["refine", str(run), "--iterations", "40", "--anisotropic", "--quiet"], capsys)
+    assert code == 0, err
+    section = json.loads((run / "metrics.json").read_text())["refine"]
+    assert section["settings"]["anisotropic"] is True
+    assert section["before"]["psnr"] == pytest.approx(iso["psnr"], abs=1e-3)
+    assert section["after"]["psnr"] > section["before"]["psnr"] + 0.5, section
+    scales = read_ply(run / "map_refined.ply")["log_scales"]
+    assert scales.shape[1] == 3 and float(np.abs(scales[:, 0] - scales[:, 1]).max()) > 1e-3
 
 
 def test_density_control_clones_small_and_splits_large_gaussians():

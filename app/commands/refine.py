@@ -15,6 +15,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "working: the keyframes as the run stored them")
     p.add_argument("--input", default=None, metavar="CAPTURE",
                    help="the run's capture, when the run does not record it or it has moved")
+    p.add_argument("--anisotropic", action="store_true",
+                   help="give each Gaussian three scales and a rotation to optimise (SLAM's map is isotropic)")
     p.add_argument("--restart", action="store_true", help="discard an interrupted refine's checkpoint")
     p.add_argument("--checkpoint-every", type=int, default=100, help="iterations between checkpoints (0: never)")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
@@ -27,7 +29,8 @@ def main(args) -> int:
     from splat_core.pipeline import resolve_device
     from splat_core.refine import RefineJob, RefineSettings
 
-    job = RefineJob(args.run, RefineSettings(iterations=args.iterations), resolution=args.resolution,
+    settings = RefineSettings(iterations=args.iterations, anisotropic=args.anisotropic)
+    job = RefineJob(args.run, settings, resolution=args.resolution,
                     capture=args.input, restart=args.restart, device=resolve_device(args.device),
                     checkpoint_every=args.checkpoint_every)
     if not args.quiet:

@@ -44,6 +44,7 @@ class RefineSettings:
     density: DensitySettings = field(default_factory=DensitySettings)
     lrs: dict | None = None            # Adam learning rates per parameter; None = the run's mapping rates
                                        # with REFINE_LRS over them
+    anisotropic: bool = False          # give an isotropic map 3 scales and a rotation to optimise
     seed: int = 0
 
     def resolved(self, mapping: MappingConfig) -> "RefineSettings":
@@ -64,8 +65,10 @@ class Refiner:
                  settings: RefineSettings, scene_radius: float, renderer: Renderer = Renderer()):
         if not views:
             raise ValueError("refinement needs at least one view")
-        self.map, self.views, self.intrinsics = gmap, views, intrinsics
         self.loss_config, self.settings = loss, settings.resolved(loss)
+        if self.settings.anisotropic and gmap.isotropic:
+            gmap = gmap.anisotropic()
+        self.map, self.views, self.intrinsics = gmap, views, intrinsics
         self.scene_radius, self.renderer = scene_radius, renderer
         self.optimizer = gmap.adam(self.settings.lrs)
         self.stats = GradientStats(len(gmap), gmap.device)
