@@ -150,8 +150,8 @@ class _RasterizePixelsCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, px, py):
         dtype = _working_dtype(means2d)
         with numba_lock():
-            b = _bin(means2d, conics, opacities, None, depths, radii, width, height, dtype, {})
-            feats = np.ascontiguousarray(_np(features, dtype)[b.order])
+            b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, {})
+            feats = np.ascontiguousarray(np.concatenate(b.blocks, axis=1)[:, :b.nch])   # depth order
             P, C = px.shape[0], feats.shape[1]
             out = np.empty((P, C), dtype=dtype)
             alpha = np.empty(P, dtype=dtype)
