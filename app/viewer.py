@@ -55,7 +55,8 @@ class ViewerApp:
     def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None,
                  render_backend: str = "auto", update_hz: float = 2.0, assets: WebAssets | None = None,
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
-                 consolidate_every: int = 5, consolidate_interval_s: float = 10.0):
+                 consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
+                 map_updates: str = "keyframes"):
         self.server = server
         self.source = source
         self.export_dir = Path(export_dir) if export_dir else None
@@ -72,9 +73,9 @@ class ViewerApp:
         server.initial_camera.look_at = (0.0, 0.0, 1.5)
         server.initial_camera.up = (0.0, -1.0, 0.0)
 
-        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s)
+        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
-        self.panels = Panels(server, self.assets.help_markdown, self.has_controls)
+        self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates)
         self.refine_panel = RefinePanel(server, source, self.wake)
         self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
         self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder)
@@ -94,6 +95,7 @@ class ViewerApp:
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._wake = threading.Event()
+        self._reapply = threading.Event()
         self._last_state = None
         self._camera_placed = False
         self.updates = 0
@@ -112,6 +114,7 @@ class ViewerApp:
             p.pause_button.on_click(lambda _: self._control("pause"))
             p.resume_button.on_click(lambda _: self._control("resume"))
             p.step_button.on_click(lambda _: self._control("step_once"))
+        p.map_updates.on_update(self._on_map_updates)
         p.keyframe_slider.on_update(self._on_slider)
         p.follow_latest.on_update(self._on_follow)
         p.export_ply_button.on_click(lambda ev: self._export(ev, "ply"))
@@ -124,6 +127,11 @@ class ViewerApp:
             p.pause_button.disabled = action == "pause" or action == "step_once"
             p.resume_button.disabled = action == "resume"
             p.step_button.disabled = action == "resume"
+        self.wake()
+
+    def _on_map_updates(self, _event) -> None:
+        self.map_layer.set_policy(self.panels.map_updates.value)
+        self._reapply.set()   # the latest snapshot again, under the new policy
         self.wake()
 
     def _on_client_connect(self, client: viser.ClientHandle) -> None:
@@ -159,17 +167,21 @@ class ViewerApp:
     def update_once(self) -> bool:
         """Apply the latest snapshot if it is new; returns True when something changed."""
         snap = self.source.latest()
-        if snap is None or (self._snapshot is not None and snap.version == self._snapshot.version):
+        reapply = self._reapply.is_set()
+        self._reapply.clear()
+        if snap is None or (self._snapshot is not None and snap.version == self._snapshot.version
+                            and not reapply):
             return False
         with self._lock:
             prev, self._snapshot = self._snapshot, snap
         state_changed = prev is None or prev.state != snap.state
         # Consolidate (refresh every chunk) when the run pauses, ends, or in browse mode.
         force = state_changed and snap.state in ("paused", "finished", "stopped", "browse")
-        if self.map_layer.update(snap, force_consolidate=force):
-            if self.first_map_at is None and snap.num_gaussians:
-                self.first_map_at = time.monotonic()
-            for view in list(self.novel_views.values()):
+        if self.map_layer.update(snap, force_consolidate=force) and self.first_map_at is None \
+                and snap.num_gaussians:
+            self.first_map_at = time.monotonic()
+        if prev is None or prev.map_version != snap.map_version or force:   # our renders follow
+            for view in list(self.novel_views.values()):                    # every map version
                 view.refresh()
         self.camera_layer.update(snap)
         if not self._camera_placed and snap.num_gaussians:

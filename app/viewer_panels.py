@@ -12,6 +12,7 @@ import viser.uplot
 
 from .images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
 from .snapshot import MapSnapshot
+from .viewer_scene import POLICIES as MAP_POLICIES
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),
@@ -81,7 +82,8 @@ def _resize_like(img: np.ndarray, like: np.ndarray) -> np.ndarray:
 
 
 class Panels:
-    def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool):
+    def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool,
+                 map_updates: str = "keyframes"):
         gui = server.gui
         self.server = server
         with gui.add_folder("Run", order=0):
@@ -94,6 +96,11 @@ class Panels:
             self.step_button = gui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT,
                                               visible=has_controls, disabled=True)
             self.frame_text = gui.add_text("Frames processed", "0", disabled=True)
+            self.map_updates = gui.add_dropdown(
+                "Map updates", MAP_POLICIES, initial_value=map_updates, visible=has_controls,
+                hint="When the splats in the 3D view follow SLAM: at each keyframe, also between "
+                     "keyframes (costs a software-rendering browser much CPU), or only when paused "
+                     "or finished")
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
         with gui.add_folder("Keyframes", order=2):

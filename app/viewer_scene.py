@@ -15,6 +15,14 @@ sent again and an update costs what changed, not the whole map.
 Covariances travel as float16, so positions and covariances are uploaded multiplied by
 WORLD_SCALE and each node gets `scale=1/WORLD_SCALE` (the notes' nerfstudio trick), keeping
 millimetre-sized Gaussians representable.
+
+While SLAM runs, `policy` says when the browser gets map changes: "keyframes" (the default) sends
+a keyframe's chunk, the tail and any due consolidation when a keyframe arrives, and nothing
+between keyframes (a third of the splat messages of "continuous" in a 20-frame run);
+"continuous" also re-sends the tail with every new snapshot (at most update_hz); "off" sends
+nothing until the run pauses or ends. On a machine that renders WebGL in software on the cores
+SLAM uses, what slows SLAM is the browser redrawing the splats at all, not how often they change:
+"off" is the setting for that case (README "Viewer").
 """
 
 from __future__ import annotations
@@ -67,12 +75,16 @@ def chunk_fingerprint(arrays: dict, index: np.ndarray) -> bytes:
     return h.digest()
 
 
+POLICIES = ("keyframes", "continuous", "off")
+
+
 class MapLayer:
     """Splat chunks per keyframe under `/map` (see the module docstring)."""
 
     def __init__(self, server: viser.ViserServer, consolidate_every: int = 5,
-                 consolidate_interval_s: float = 10.0):
+                 consolidate_interval_s: float = 10.0, policy: str = "keyframes"):
         self.server = server
+        self.policy = policy
         self.consolidate_every = consolidate_every
         self.consolidate_interval_s = consolidate_interval_s
         self._lock = threading.RLock()
@@ -100,9 +112,11 @@ class MapLayer:
         with self._lock:
             if snap.map_version == self._map_version and not force_consolidate:
                 return False
-            t0 = time.perf_counter()
             kf_frames = snap.keyframe_frames
             K = len(kf_frames)
+            if not force_consolidate and snap.state == "running" and self._held_back(K):
+                return False
+            t0 = time.perf_counter()
             consolidate = force_consolidate or (
                 K - self._keyframes_at_consolidation >= self.consolidate_every
                 or time.monotonic() - self._consolidated_at >= self.consolidate_interval_s)
@@ -136,6 +150,22 @@ class MapLayer:
                 self.consolidations += 1
             self.last_update_seconds = time.perf_counter() - t0
             return True
+
+    def set_policy(self, policy: str) -> None:
+        """Change when map changes reach the browser (POLICIES); the next update consolidates."""
+        if policy not in POLICIES:
+            raise ValueError(f"map update policy must be one of {POLICIES}, not {policy!r}")
+        with self._lock:
+            self.policy = policy
+            self._keyframes_at_consolidation = -self.consolidate_every   # refresh all next time
+
+    def _held_back(self, K: int) -> bool:
+        """True when `policy` keeps this running snapshot's map from the browser."""
+        if self.policy == "continuous":
+            return False
+        if self.policy == "off":
+            return True
+        return K <= len(self._order) - 1   # no keyframe since the last push
 
     def _send(self, name: str, payload, visible: bool) -> None:
         handle = self._nodes.get(name)

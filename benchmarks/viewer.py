@@ -1,7 +1,7 @@
 """Viewer costs: server-side map updates as the map grows, and time to first splats in a browser.
 
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
-    python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] --sizes '' --client-sizes ''
+    python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off] --sizes '' --client-sizes ''
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
 viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page), one
@@ -136,7 +136,7 @@ def client_side(n: int, timeout: float) -> dict:
         server.stop()
 
 
-def slam_rate(frames: int, engine: str, config: str, repeats: int = 1) -> dict:
+def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes") -> dict:
     """Median s/frame of SLAM headless and inside the viewer with a browser watching."""
     import statistics
 
@@ -172,7 +172,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1) -> dict:
         try:
             page = browser.new_page(viewport={"width": 800, "height": 600})
             worker = SlamWorker(pipe, start_paused=True)
-            app = build_viewer(server, worker)
+            app = build_viewer(server, worker, map_updates=map_updates)
             page.goto(f"http://127.0.0.1:{server.get_port()}/")
             page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
             worker.start()
@@ -185,7 +185,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1) -> dict:
             pw.stop()
             server.stop()
     h, v = statistics.median(headless), statistics.median(viewer)
-    return dict(frames=frames, engine=engine, config=config, headless_s_per_frame=round(h, 3),
+    return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, headless_s_per_frame=round(h, 3),
                 viewer_s_per_frame=round(v, 3), viewer_fps_over_headless_fps=round(h / v, 3),
                 runs=dict(headless=headless, viewer=viewer))
 
@@ -201,6 +201,8 @@ def main() -> int:
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
     p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--map-updates", default="keyframes", choices=("keyframes", "continuous", "off"),
+                   help="the viewer's map update policy during the --slam-frames run")
     args = p.parse_args()
     out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),
                server=[], client=[],
@@ -222,7 +224,8 @@ def main() -> int:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
     if args.slam_frames:
-        out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats)
+        out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats,
+                                     args.map_updates)
         if not args.json:
             print(out["slam_rate"], flush=True)
     if args.json:

@@ -132,6 +132,9 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
                    "PSNR" in app.panels.keyframe_info.content, 30, what="keyframe render")
         app.scrub_to(None)
         assert all(h.visible for h in nodes.values())
+        assert app.map_layer.policy == "keyframes"          # the page's "Map updates" sets the policy
+        app.panels.map_updates.value = "continuous"
+        assert app.map_layer.policy == "continuous"
         # exports land in the run folder
         name, content, path = app.export_files("ply")
         assert name == "map.ply" and path == tmp_path / "map.ply"
@@ -157,6 +160,38 @@ def test_consolidation_resends_only_the_chunks_that_changed(server):
     moved["means"][250:] += 0.01                                # mapping moved Gaussians of the last chunk only
     assert layer.update(snap(2, moved), force_consolidate=True)
     assert layer.chunks_sent == 4 and layer.consolidations == 2
+
+
+def test_map_update_policies_hold_back_changes_between_keyframes(server):
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer_scene import MapLayer
+
+    m = blob_map(300, 0).to_numpy()
+    m["birth_frame"] = np.repeat([0, 5, 7], 100)                # two keyframe chunks and a tail
+
+    def snap(version, keyframes, state="running"):
+        kfs = tuple(KeyframeView(f, np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in keyframes)
+        g = {k: np.array(v) for k, v in m.items()}
+        g["means"][200:] += 0.001 * version                     # the tail keeps changing
+        return MapSnapshot(version, state, 7, 20, version, g, kfs)
+
+    layer = MapLayer(server)                                    # default: "keyframes"
+    assert layer.update(snap(1, (0, 5)))                        # first push
+    sent = layer.chunks_sent
+    assert not layer.update(snap(2, (0, 5)))                    # a new map, no new keyframe: held
+    assert layer.chunks_sent == sent
+    assert layer.update(snap(3, (0, 5), "paused"), force_consolidate=True)   # pausing sends it
+    assert layer.chunks_sent == sent + 1                        # the changed tail only
+    m["birth_frame"][200:] = 10
+    assert layer.update(snap(4, (0, 5, 10)))                    # a keyframe arrives: pushed
+    assert "/map/kf_000010" in layer.node_names
+    layer.set_policy("continuous")
+    assert layer.update(snap(5, (0, 5, 10)))                    # every new map goes out
+    layer.set_policy("off")
+    assert not layer.update(snap(6, (0, 5, 10, 15)))            # not even keyframes while running
+    assert layer.update(snap(7, (0, 5, 10, 15), "finished"), force_consolidate=True)
+    with pytest.raises(ValueError, match="map update policy"):
+        layer.set_policy("sometimes")
 
 
 def make_run(tmp_path, n=400):

@@ -26,6 +26,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--open", default=None, metavar="RUN_DIR|MAP.ply",
                    help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
     p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
+    p.add_argument("--map-updates", default="keyframes", choices=("keyframes", "continuous", "off"),
+                   help="when the browser gets the growing map while SLAM runs: at each keyframe (default), "
+                        "also between keyframes, or only when paused / finished (the page's 'Map updates')")
 
 
 def port_is_free(host: str, port: int) -> bool:
@@ -90,7 +93,7 @@ def main(args) -> int:
         what = "\n".join(run.lines())
 
     server = start_server(args.host, args.port)
-    app = build_viewer(server, source, export_dir=export_dir)
+    app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates)
     url = f"http://{args.host}:{server.get_port()}/"
     print(what, file=sys.stderr)
     print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
