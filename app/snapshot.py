@@ -18,6 +18,9 @@ from splat_core.camera import Intrinsics
 # Worker / viewer states shown in the status panel.
 STATES = ("starting", "running", "paused", "finished", "stopped", "error", "browse")
 
+# When the browser gets the growing map while SLAM runs (app/viewer_scene.py MapLayer.policy).
+MAP_UPDATE_POLICIES = ("keyframes", "continuous", "off")
+
 HISTORY_KEYS = ("frame", "tracking_loss", "ate_cm", "seconds", "psnr", "num_gaussians")
 
 

@@ -11,8 +11,7 @@ import viser
 import viser.uplot
 
 from .images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
-from .snapshot import MapSnapshot
-from .viewer_scene import POLICIES as MAP_POLICIES
+from .snapshot import MAP_UPDATE_POLICIES, MapSnapshot
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),
@@ -97,7 +96,7 @@ class Panels:
                                               visible=has_controls, disabled=True)
             self.frame_text = gui.add_text("Frames processed", "0", disabled=True)
             self.map_updates = gui.add_dropdown(
-                "Map updates", MAP_POLICIES, initial_value=map_updates, visible=has_controls,
+                "Map updates", MAP_UPDATE_POLICIES, initial_value=map_updates, visible=has_controls,
                 hint="When the splats in the 3D view follow SLAM: at each keyframe, also between "
                      "keyframes (costs a software-rendering browser much CPU), or only when paused "
                      "or finished")

@@ -36,7 +36,7 @@ import viser
 
 from splat_core.camera import rotmat_to_quat
 
-from .snapshot import MapSnapshot, keyframe_buckets
+from .snapshot import MAP_UPDATE_POLICIES, MapSnapshot, keyframe_buckets
 
 WORLD_SCALE = 10.0
 
@@ -73,9 +73,6 @@ def chunk_fingerprint(arrays: dict, index: np.ndarray) -> bytes:
     for name in ("means", "colors", "rotations", "logit_opacities", "log_scales"):
         h.update(np.ascontiguousarray(np.asarray(arrays[name])[index]).tobytes())
     return h.digest()
-
-
-POLICIES = ("keyframes", "continuous", "off")
 
 
 class MapLayer:
@@ -152,9 +149,9 @@ class MapLayer:
             return True
 
     def set_policy(self, policy: str) -> None:
-        """Change when map changes reach the browser (POLICIES); the next update consolidates."""
-        if policy not in POLICIES:
-            raise ValueError(f"map update policy must be one of {POLICIES}, not {policy!r}")
+        """Change when map changes reach the browser (MAP_UPDATE_POLICIES); the next update consolidates."""
+        if policy not in MAP_UPDATE_POLICIES:
+            raise ValueError(f"map update policy must be one of {MAP_UPDATE_POLICIES}, not {policy!r}")
         with self._lock:
             self.policy = policy
             self._keyframes_at_consolidation = -self.consolidate_every   # refresh all next time

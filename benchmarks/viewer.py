@@ -29,7 +29,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from app.snapshot import KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
+from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
 from app.viewer_scene import MapLayer  # noqa: E402
 from splat_core.gaussians import GaussianMap  # noqa: E402
 
@@ -201,7 +201,7 @@ def main() -> int:
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
     p.add_argument("--repeats", type=int, default=1)
-    p.add_argument("--map-updates", default="keyframes", choices=("keyframes", "continuous", "off"),
+    p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
                    help="the viewer's map update policy during the --slam-frames run")
     args = p.parse_args()
     out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),

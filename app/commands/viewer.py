@@ -10,6 +10,7 @@ from datetime import datetime
 from pathlib import Path
 
 from app.run_setup import add_run_arguments, setup_from_args
+from app.snapshot import MAP_UPDATE_POLICIES
 from splat_core.errors import InputError
 
 DEFAULT_PORT = 8080
@@ -26,7 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--open", default=None, metavar="RUN_DIR|MAP.ply",
                    help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
     p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
-    p.add_argument("--map-updates", default="keyframes", choices=("keyframes", "continuous", "off"),
+    p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
                    help="when the browser gets the growing map while SLAM runs: at each keyframe (default), "
                         "also between keyframes, or only when paused / finished (the page's 'Map updates')")
 
