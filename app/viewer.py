@@ -56,7 +56,7 @@ class ViewerApp:
                  render_backend: str = "auto", update_hz: float = 2.0, assets: WebAssets | None = None,
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
-                 map_updates: str = "keyframes"):
+                 map_updates: str = "keyframes", browser_splats: int | None = None):
         self.server = server
         self.source = source
         self.export_dir = Path(export_dir) if export_dir else None
@@ -73,9 +73,9 @@ class ViewerApp:
         server.initial_camera.look_at = (0.0, 0.0, 1.5)
         server.initial_camera.up = (0.0, -1.0, 0.0)
 
-        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates)
+        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
-        self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates)
+        self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats)
         self.refine_panel = RefinePanel(server, source, self.wake)
         self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
         self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder)
@@ -115,6 +115,7 @@ class ViewerApp:
             p.resume_button.on_click(lambda _: self._control("resume"))
             p.step_button.on_click(lambda _: self._control("step_once"))
         p.map_updates.on_update(self._on_map_updates)
+        p.browser_splats.on_update(self._on_browser_splats)
         p.keyframe_slider.on_update(self._on_slider)
         p.follow_latest.on_update(self._on_follow)
         p.export_ply_button.on_click(lambda ev: self._export(ev, "ply"))
@@ -132,6 +133,11 @@ class ViewerApp:
     def _on_map_updates(self, _event) -> None:
         self.map_layer.set_policy(self.panels.map_updates.value)
         self._reapply.set()   # the latest snapshot again, under the new policy
+        self.wake()
+
+    def _on_browser_splats(self, _event) -> None:
+        self.map_layer.budget = int(self.panels.browser_splats.value) or None
+        self._reapply.set()
         self.wake()
 
     def _on_client_connect(self, client: viser.ClientHandle) -> None:

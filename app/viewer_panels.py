@@ -82,7 +82,7 @@ def _resize_like(img: np.ndarray, like: np.ndarray) -> np.ndarray:
 
 class Panels:
     def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool,
-                 map_updates: str = "keyframes"):
+                 map_updates: str = "keyframes", browser_splats: int | None = None):
         gui = server.gui
         self.server = server
         with gui.add_folder("Run", order=0):
@@ -100,6 +100,11 @@ class Panels:
                 hint="When the splats in the 3D view follow SLAM: at each keyframe, also between "
                      "keyframes (costs a software-rendering browser much CPU), or only when paused "
                      "or finished")
+            self.browser_splats = gui.add_number(
+                "Splats while running", browser_splats or 0, min=0, step=1000, visible=has_controls,
+                hint="0: the whole map. N: while SLAM runs, a thinned preview of at most about N larger "
+                     "splats (the whole map when paused or finished), for a browser that draws WebGL in "
+                     "software on the machine running SLAM")
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
         with gui.add_folder("Keyframes", order=2):

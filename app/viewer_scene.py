@@ -23,6 +23,12 @@ between keyframes (a third of the splat messages of "continuous" in a 20-frame r
 nothing until the run pauses or ends. On a machine that renders WebGL in software on the cores
 SLAM uses, what slows SLAM is the browser redrawing the splats at all, not how often they change:
 "off" is the setting for that case (README "Viewer").
+
+`budget` (`splatam-viewer --browser-splats N`) caps what the browser draws while SLAM runs: past
+N Gaussians it gets every stride-th Gaussian of each chunk (stride a power of two), each with
+its footprint grown stride times so the preview still covers the surfaces; pausing or finishing
+sends the whole map. A browser that draws WebGL in software spends CPU in proportion to the
+splats it draws, about once a second even when nothing changes (README "Viewer").
 """
 
 from __future__ import annotations
@@ -41,14 +47,15 @@ from .snapshot import MAP_UPDATE_POLICIES, MapSnapshot, keyframe_buckets
 WORLD_SCALE = 10.0
 
 
-def splat_payload(arrays: dict, index: np.ndarray | None = None):
+def splat_payload(arrays: dict, index: np.ndarray | None = None, area: float = 1.0):
     """(centers, covariances, rgbs, opacities (N,1)) for viser from raw Gaussian arrays,
-    in the uploaded (WORLD_SCALE-multiplied) units."""
+    in the uploaded (WORLD_SCALE-multiplied) units; `area` scales each splat's footprint (its
+    variances), so that one of every `area` Gaussians still covers the surface they cover."""
     sel = (lambda a: a) if index is None else (lambda a: a[index])  # noqa: E731
     means = np.asarray(sel(arrays["means"]), np.float32)
     n = len(means)
     log_scales = np.asarray(sel(arrays["log_scales"]), np.float32).reshape(n, -1)
-    var = np.exp(2.0 * log_scales.astype(np.float64)) * WORLD_SCALE ** 2
+    var = np.exp(2.0 * log_scales.astype(np.float64)) * (WORLD_SCALE ** 2 * area)
     if log_scales.shape[1] == 1:
         cov = np.zeros((n, 3, 3), np.float32)
         cov[:, 0, 0] = cov[:, 1, 1] = cov[:, 2, 2] = var[:, 0]
@@ -79,9 +86,11 @@ class MapLayer:
     """Splat chunks per keyframe under `/map` (see the module docstring)."""
 
     def __init__(self, server: viser.ViserServer, consolidate_every: int = 5,
-                 consolidate_interval_s: float = 10.0, policy: str = "keyframes"):
+                 consolidate_interval_s: float = 10.0, policy: str = "keyframes", budget: int | None = None):
         self.server = server
         self.policy = policy
+        self.budget = budget          # most Gaussians sent while SLAM runs (None: all)
+        self.stride = 1               # every stride-th Gaussian of each chunk is sent
         self.consolidate_every = consolidate_every
         self.consolidate_interval_s = consolidate_interval_s
         self._lock = threading.RLock()
@@ -107,14 +116,15 @@ class MapLayer:
     def update(self, snap: MapSnapshot, force_consolidate: bool = False) -> bool:
         """Bring the chunks up to date with `snap`; returns True if anything was sent."""
         with self._lock:
-            if snap.map_version == self._map_version and not force_consolidate:
+            stride = self.stride_for(snap)
+            if snap.map_version == self._map_version and stride == self.stride and not force_consolidate:
                 return False
             kf_frames = snap.keyframe_frames
             K = len(kf_frames)
             if not force_consolidate and snap.state == "running" and self._held_back(K):
                 return False
             t0 = time.perf_counter()
-            consolidate = force_consolidate or (
+            consolidate = force_consolidate or stride != self.stride or (
                 K - self._keyframes_at_consolidation >= self.consolidate_every
                 or time.monotonic() - self._consolidated_at >= self.consolidate_interval_s)
             bucket = keyframe_buckets(snap.gaussians["birth_frame"], kf_frames)
@@ -127,12 +137,12 @@ class MapLayer:
             for k, name in enumerate(names):
                 is_new = name not in self._order
                 if consolidate or is_new or name == "/map/tail":
-                    idx = order[starts[k]:starts[k + 1]]
-                    digest = chunk_fingerprint(snap.gaussians, idx)
+                    idx = order[starts[k]:starts[k + 1]:stride]
+                    digest = chunk_fingerprint(snap.gaussians, idx) + stride.to_bytes(8, "little")
                     if self._fingerprints.get(name) == digest:
                         continue
                     self._fingerprints[name] = digest
-                    payloads[name] = splat_payload(snap.gaussians, idx) if len(idx) else None
+                    payloads[name] = splat_payload(snap.gaussians, idx, stride) if len(idx) else None
             with self.server.atomic():
                 for name, payload in payloads.items():
                     self._send(name, payload, self._visible(names.index(name), K))
@@ -141,12 +151,22 @@ class MapLayer:
                     self._drop(stale)                                      # but be safe
             self._order = names
             self._map_version = snap.map_version
+            self.stride = stride
             if consolidate:
                 self._keyframes_at_consolidation = K
                 self._consolidated_at = time.monotonic()
                 self.consolidations += 1
             self.last_update_seconds = time.perf_counter() - t0
             return True
+
+    def stride_for(self, snap: MapSnapshot) -> int:
+        """1 (the whole map) unless SLAM is running with more Gaussians than `budget`; then the
+        smallest power of two that brings the map within it (powers of two: the stride, and so
+        every chunk, changes only when the map has doubled)."""
+        n = snap.num_gaussians
+        if self.budget is None or snap.state != "running" or n <= self.budget:
+            return 1
+        return 1 << int(np.ceil(np.log2(n / max(self.budget, 1))))
 
     def set_policy(self, policy: str) -> None:
         """Change when map changes reach the browser (MAP_UPDATE_POLICIES); the next update consolidates."""

@@ -1,18 +1,21 @@
 """Viewer costs: server-side map updates as the map grows, and time to first splats in a browser.
 
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
-    python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off] --sizes '' --client-sizes ''
+    python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off]
+                                [--browser-splats N] --sizes '' --client-sizes ''
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
 viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page), one
 after the other in this process; the median wall-clock s/frame of each (frame 0 left out) and
-their ratio (viewer fps / headless fps).
+their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
+Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer).
 
 Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
 map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on every chunk),
 and adding one new 5k-Gaussian keyframe chunk.
 Client side: headless Debian Chromium with SOFTWARE WebGL (SwiftShader), measured by polling
-client.get_render until the splats show. These figures are worst cases that say nothing about
+client.get_render until the splats show. --idle-sizes N,...: Chromium's CPU (cores) and frames
+per second over 20 s on a page that shows a static map of N Gaussians and receives nothing. These figures are worst cases that say nothing about
 a real GPU; sizes above --client-sizes are skipped because SwiftShader needs minutes there.
 """
 
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import time
@@ -136,7 +140,56 @@ def client_side(n: int, timeout: float) -> dict:
         server.stop()
 
 
-def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes") -> dict:
+def browser_cpu_seconds() -> float:
+    """User + system CPU seconds of the running Chromium processes (from Linux's /proc; 0 elsewhere)."""
+    ticks = 0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            text = stat.read_text()
+        except OSError:          # the process ended meanwhile
+            continue
+        if "chrom" in text[text.find("(") + 1:text.rfind(")")]:
+            fields = text[text.rfind(")") + 2:].split()
+            ticks += int(fields[11]) + int(fields[12])    # utime, stime
+    return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
+
+
+def idle_browser(n: int, seconds: float = 20.0) -> dict:
+    """Chromium's CPU and frame rate on a page showing a static map of n Gaussians, nothing changing."""
+    import viser
+    from playwright.sync_api import sync_playwright
+
+    from app.viewer_scene import WORLD_SCALE, splat_payload
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    from test_viewer_browser import ARGS  # noqa: E402
+
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    if n:
+        server.scene.add_gaussian_splats("/map", *splat_payload(synthetic_map(n, 1).to_numpy()),
+                                         scale=1 / WORLD_SCALE)
+    pw = sync_playwright().start()
+    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+    try:
+        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page.add_init_script("""(() => { window.__frames = 0; const raf = window.requestAnimationFrame.bind(window);
+            window.requestAnimationFrame = (cb) => raf((t) => { window.__frames++; cb(t); }); })();""")
+        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+        time.sleep(15)                                    # the splats arrive, sort and fade in
+        cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
+        time.sleep(seconds)
+        dt = time.monotonic() - t0
+        return dict(gaussians=n, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
+                    frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2))
+    finally:
+        browser.close()
+        pw.stop()
+        server.stop()
+
+
+def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes",
+              browser_splats: int | None = None) -> dict:
     """Median s/frame of SLAM headless and inside the viewer with a browser watching."""
     import statistics
 
@@ -157,7 +210,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
-    headless, viewer = [], []
+    headless, viewer, browser_cpu = [], [], []
     for _ in range(repeats):
         pipe = pipeline()
         while pipe.step() is not None:
@@ -172,12 +225,14 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
         try:
             page = browser.new_page(viewport={"width": 800, "height": 600})
             worker = SlamWorker(pipe, start_paused=True)
-            app = build_viewer(server, worker, map_updates=map_updates)
+            app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats)
             page.goto(f"http://127.0.0.1:{server.get_port()}/")
             page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+            cpu0, t0 = browser_cpu_seconds(), time.monotonic()
             worker.start()
             worker.resume()
             worker.join()
+            browser_cpu.append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
             viewer.append(median(pipe.records))
             app.close()
         finally:
@@ -185,9 +240,11 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
             pw.stop()
             server.stop()
     h, v = statistics.median(headless), statistics.median(viewer)
-    return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, headless_s_per_frame=round(h, 3),
+    return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
+                headless_s_per_frame=round(h, 3),
                 viewer_s_per_frame=round(v, 3), viewer_fps_over_headless_fps=round(h / v, 3),
-                runs=dict(headless=headless, viewer=viewer))
+                browser_cpu_cores=round(statistics.median(browser_cpu), 3),
+                runs=dict(headless=headless, viewer=viewer, browser_cpu_cores=browser_cpu))
 
 
 def main() -> int:
@@ -197,13 +254,20 @@ def main() -> int:
     p.add_argument("--client-sizes", default="10000,100000",
                    help="sizes timed in headless Chromium (software WebGL); '' to skip")
     p.add_argument("--client-timeout", type=float, default=180.0)
+    p.add_argument("--idle-sizes", default="",
+                   help="also Chromium's CPU on a page showing a static map of these sizes, nothing changing")
     p.add_argument("--slam-frames", type=int, default=0, help="also compare SLAM's rate headless and in the viewer")
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
     p.add_argument("--repeats", type=int, default=1)
     p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
                    help="the viewer's map update policy during the --slam-frames run")
+    p.add_argument("--browser-splats", type=int, default=None,
+                   help="the viewer's --browser-splats during the --slam-frames run")
     args = p.parse_args()
+    stdout = sys.stdout
+    if args.json:            # viser prints its banner for every server: keep stdout to the JSON
+        sys.stdout = sys.stderr
     out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),
                server=[], client=[],
                client_caveat="headless Chromium with SwiftShader software WebGL: worst case, not GPU figures")
@@ -223,13 +287,15 @@ def main() -> int:
         if skipped:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
+    if Path(CHROMIUM).exists():
+        out["idle_browser"] = [idle_browser(int(n)) for n in args.idle_sizes.split(",") if n]
     if args.slam_frames:
         out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats,
-                                     args.map_updates)
+                                     args.map_updates, args.browser_splats)
         if not args.json:
             print(out["slam_rate"], flush=True)
     if args.json:
-        print(json.dumps(out, indent=1))
+        print(json.dumps(out, indent=1), file=stdout)
     return 0
 
 

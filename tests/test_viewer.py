@@ -135,6 +135,11 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert app.map_layer.policy == "keyframes"          # the page's "Map updates" sets the policy
         app.panels.map_updates.value = "continuous"
         assert app.map_layer.policy == "continuous"
+        assert app.map_layer.budget is None                 # "Splats while running" sets the budget
+        app.panels.browser_splats.value = 5000
+        assert app.map_layer.budget == 5000
+        app.panels.browser_splats.value = 0
+        assert app.map_layer.budget is None
         # exports land in the run folder
         name, content, path = app.export_files("ply")
         assert name == "map.ply" and path == tmp_path / "map.ply"
@@ -192,6 +197,32 @@ def test_map_update_policies_hold_back_changes_between_keyframes(server):
     assert layer.update(snap(7, (0, 5, 10, 15), "finished"), force_consolidate=True)
     with pytest.raises(ValueError, match="map update policy"):
         layer.set_policy("sometimes")
+
+
+def test_browser_budget_thins_the_map_while_slam_runs(server):
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer_scene import MapLayer, splat_payload
+
+    m = blob_map(300, 0).to_numpy()
+    m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks of 100
+
+    def snap(version, state="running"):
+        kfs = tuple(KeyframeView(f, np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in (0, 5, 10))
+        return MapSnapshot(version, state, 10, 20, version, m, kfs)
+
+    def sent():
+        return sum(h.buffer.shape[0] for h in layer._nodes.values())
+
+    layer = MapLayer(server, budget=100)
+    assert layer.update(snap(1)) and layer.stride == 4 and sent() == 3 * 25   # 300 > 100: every 4th
+    assert layer.update(snap(2, "paused"), force_consolidate=True)
+    assert layer.stride == 1 and sent() == 300                   # pausing sends the whole map
+    assert MapLayer(server, budget=300).stride_for(snap(3)) == 1
+    assert MapLayer(server, budget=299).stride_for(snap(3)) == 2
+    # a thinned splat covers the area of the ones it stands for: variances x stride
+    _, cov, _, _ = splat_payload(m, np.arange(3))
+    _, cov4, _, _ = splat_payload(m, np.arange(3), 4)
+    np.testing.assert_allclose(cov4, 4 * cov, rtol=1e-6)
 
 
 def make_run(tmp_path, n=400):

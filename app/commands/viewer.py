@@ -30,6 +30,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
                    help="when the browser gets the growing map while SLAM runs: at each keyframe (default), "
                         "also between keyframes, or only when paused / finished (the page's 'Map updates')")
+    p.add_argument("--browser-splats", type=positive_int, default=None, metavar="N",
+                   help="while SLAM runs, send the browser at most about N Gaussians (a thinned preview with "
+                        "larger splats; the whole map when paused or finished): for a browser that draws "
+                        "WebGL in software on the machine running SLAM (default: the whole map)")
+
+
+def positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text}: expected a positive number")
+    return value
 
 
 def port_is_free(host: str, port: int) -> bool:
@@ -94,7 +105,8 @@ def main(args) -> int:
         what = "\n".join(run.lines())
 
     server = start_server(args.host, args.port)
-    app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates)
+    app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates,
+                      browser_splats=args.browser_splats)
     url = f"http://{args.host}:{server.get_port()}/"
     print(what, file=sys.stderr)
     print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
