@@ -183,13 +183,16 @@ class ViewerApp:
         state_changed = prev is None or prev.state != snap.state
         # Consolidate (refresh every chunk) when the run pauses, ends, or in browse mode.
         force = state_changed and snap.state in ("paused", "finished", "stopped", "browse")
-        if self.map_layer.update(snap, force_consolidate=force) and self.first_map_at is None \
-                and snap.num_gaussians:
-            self.first_map_at = time.monotonic()
+        # The 3D scene (map, cameras, trajectories) follows the map update policy, and shows at once
+        # when tracking is lost or found: any scene message makes viser's page redraw (README "Viewer").
+        if force or self.map_layer.follows(snap) or snap.tracking_lost != self.camera_layer.lost_shown:
+            if self.map_layer.update(snap, force_consolidate=force) and self.first_map_at is None \
+                    and snap.num_gaussians:
+                self.first_map_at = time.monotonic()
+            self.camera_layer.update(snap)
         if prev is None or prev.map_version != snap.map_version or force:   # our renders follow
             for view in list(self.novel_views.values()):                    # every map version
                 view.refresh()
-        self.camera_layer.update(snap)
         if not self._camera_placed and snap.num_gaussians:
             self._place_initial_camera(snap)
         p = self.panels

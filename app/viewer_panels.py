@@ -97,9 +97,9 @@ class Panels:
             self.frame_text = gui.add_text("Frames processed", "0", disabled=True)
             self.map_updates = gui.add_dropdown(
                 "Map updates", MAP_UPDATE_POLICIES, initial_value=map_updates, visible=has_controls,
-                hint="When the splats in the 3D view follow SLAM: at each keyframe, also between "
-                     "keyframes (costs a software-rendering browser much CPU), or only when paused "
-                     "or finished")
+                hint="When the 3D view (splats, current camera, trajectory) follows SLAM: at each "
+                     "keyframe, also between keyframes (costs a software-rendering browser much CPU), "
+                     "or only when paused or finished")
             self.browser_splats = gui.add_number(
                 "Splats while running", browser_splats or 0, min=0, step=1000, visible=has_controls,
                 hint="0: the whole map. N: while SLAM runs, a thinned preview of at most about N larger "

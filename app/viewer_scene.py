@@ -16,19 +16,19 @@ Covariances travel as float16, so positions and covariances are uploaded multipl
 WORLD_SCALE and each node gets `scale=1/WORLD_SCALE` (the notes' nerfstudio trick), keeping
 millimetre-sized Gaussians representable.
 
-While SLAM runs, `policy` says when the browser gets map changes: "keyframes" (the default) sends
-a keyframe's chunk, the tail and any due consolidation when a keyframe arrives, and nothing
-between keyframes (a third of the splat messages of "continuous" in a 20-frame run);
-"continuous" also re-sends the tail with every new snapshot (at most update_hz); "off" sends
-nothing until the run pauses or ends. On a machine that renders WebGL in software on the cores
-SLAM uses, what slows SLAM is the browser redrawing the splats at all, not how often they change:
-"off" is the setting for that case (README "Viewer").
+While SLAM runs, `policy` says when the browser's 3D scene follows it (`follows`): "keyframes"
+(the default) sends a keyframe's chunk, the tail and any due consolidation when a keyframe
+arrives, and nothing between keyframes; "continuous" also re-sends the tail with every new
+snapshot (at most update_hz); "off" sends nothing until the run pauses or ends. The viewer holds
+the camera layer (current camera, trajectories, keyframe frustums) to the same policy: each
+scene message makes viser's page draw frames for 250 ms, which a browser that draws WebGL in
+software pays for on the cores SLAM uses (README "Viewer").
 
 `budget` (`splatam-viewer --browser-splats N`) caps what the browser draws while SLAM runs: past
 N Gaussians it gets every stride-th Gaussian of each chunk (stride a power of two), each with
 its footprint grown stride times so the preview still covers the surfaces; pausing or finishing
 sends the whole map. A browser that draws WebGL in software spends CPU in proportion to the
-splats it draws, about once a second even when nothing changes (README "Viewer").
+splats it draws, at least once a second even when nothing changes.
 """
 
 from __future__ import annotations
@@ -98,6 +98,7 @@ class MapLayer:
         self._order: list[str] = []                               # chunk names, keyframe order
         self._limit: int | None = None                           # show chunks 0..limit; None = all
         self._map_version = -1
+        self._keyframes_followed = -1                             # keyframes of the last snapshot followed
         self._keyframes_at_consolidation = 0
         self._consolidated_at = time.monotonic()
         self._fingerprints: dict[str, bytes] = {}                  # name -> digest of what was sent
@@ -116,12 +117,12 @@ class MapLayer:
     def update(self, snap: MapSnapshot, force_consolidate: bool = False) -> bool:
         """Bring the chunks up to date with `snap`; returns True if anything was sent."""
         with self._lock:
-            stride = self.stride_for(snap)
-            if snap.map_version == self._map_version and stride == self.stride and not force_consolidate:
+            if not force_consolidate and not self.follows(snap):
                 return False
             kf_frames = snap.keyframe_frames
-            K = len(kf_frames)
-            if not force_consolidate and snap.state == "running" and self._held_back(K):
+            K = self._keyframes_followed = len(kf_frames)
+            stride = self.stride_for(snap)
+            if snap.map_version == self._map_version and stride == self.stride and not force_consolidate:
                 return False
             t0 = time.perf_counter()
             consolidate = force_consolidate or stride != self.stride or (
@@ -176,13 +177,13 @@ class MapLayer:
             self.policy = policy
             self._keyframes_at_consolidation = -self.consolidate_every   # refresh all next time
 
-    def _held_back(self, K: int) -> bool:
-        """True when `policy` keeps this running snapshot's map from the browser."""
-        if self.policy == "continuous":
-            return False
-        if self.policy == "off":
+    def follows(self, snap: MapSnapshot) -> bool:
+        """Whether `policy` lets the browser's 3D scene follow this snapshot: always once SLAM
+        stops running; while it runs, "continuous" always, "keyframes" when a keyframe arrived
+        since the last snapshot followed, "off" never."""
+        if snap.state != "running" or self.policy == "continuous":
             return True
-        return K <= len(self._order) - 1   # no keyframe since the last push
+        return self.policy == "keyframes" and len(snap.keyframe_frames) > self._keyframes_followed
 
     def _send(self, name: str, payload, visible: bool) -> None:
         handle = self._nodes.get(name)
@@ -247,6 +248,7 @@ class CameraLayer:
         self._frustums: dict[int, viser.CameraFrustumHandle] = {}
         self._selected: int | None = None
         self._current = None
+        self.lost_shown = False   # the current camera is drawn in the "lost" colour
         self._traj_len = {"estimated": -1, "reference": -1}
         self._lock = threading.RLock()
 
@@ -287,6 +289,7 @@ class CameraLayer:
             if len(snap.estimated_c2w) and snap.state != "browse":
                 wxyz, pos = wxyz_position(snap.estimated_c2w[-1])
                 color = self.colors["lost"] if snap.tracking_lost else self.colors["current"]
+                self.lost_shown = snap.tracking_lost
                 if self._current is None:
                     self._current = self.server.scene.add_camera_frustum(
                         "/camera/current", fov=fov, aspect=aspect, scale=scale * 1.3,

@@ -199,6 +199,53 @@ def test_map_update_policies_hold_back_changes_between_keyframes(server):
         layer.set_policy("sometimes")
 
 
+def test_the_camera_layer_follows_the_map_update_policy(server):
+    """The current camera and trajectory reach the browser when the splats do (any scene message
+    makes viser's page redraw for a while: README "Viewer"), and at once when tracking is lost."""
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer import build_viewer
+
+    class Source:
+        snap = None
+
+        def latest(self):
+            return self.snap
+
+    m = blob_map(200, 0).to_numpy()
+
+    def snap(version, keyframes, x, state="running", lost=False):
+        kfs = tuple(KeyframeView(f, np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in keyframes)
+        c2w = np.repeat(np.eye(4)[None], version, axis=0)
+        c2w[-1, 0, 3] = x
+        return MapSnapshot(version, state, version - 1, 20, 1, m, kfs, estimated_c2w=c2w,
+                           lost_frames=(version - 1,) if lost else ())
+
+    source = Source()
+    app = build_viewer(server, source)
+    try:
+        def apply(s):
+            source.snap = s
+            app.wake()
+            wait_until(lambda: app.applied is not None and app.applied.frame_index == s.frame_index, 10,
+                       what=f"snapshot {s.version}")
+            return np.asarray(app.camera_layer._current.position)
+
+        assert np.allclose(apply(snap(2, (0,), 0.1)), [0.1, 0, 0])
+        assert np.allclose(apply(snap(3, (0,), 0.2)), [0.1, 0, 0])       # no new keyframe: held
+        assert np.allclose(apply(snap(4, (0, 3), 0.3)), [0.3, 0, 0])     # a keyframe: follows
+        assert np.allclose(apply(snap(5, (0, 3), 0.35, lost=True)), [0.35, 0, 0])   # tracking lost:
+        assert app.camera_layer.lost_shown                                          # shown at once
+        assert np.allclose(apply(snap(6, (0, 3), 0.36, lost=True)), [0.35, 0, 0])
+        assert np.allclose(apply(snap(7, (0, 3), 0.37)), [0.37, 0, 0])   # and found again
+        app.panels.map_updates.value = "continuous"
+        assert np.allclose(apply(snap(8, (0, 3), 0.4)), [0.4, 0, 0])     # every snapshot
+        app.panels.map_updates.value = "off"
+        assert np.allclose(apply(snap(9, (0, 3, 5), 0.5)), [0.4, 0, 0])  # not even keyframes
+        assert np.allclose(apply(snap(10, (0, 3, 5), 0.6, "paused")), [0.6, 0, 0])
+    finally:
+        app.close()
+
+
 def test_browser_budget_thins_the_map_while_slam_runs(server):
     from app.snapshot import KeyframeView, MapSnapshot
     from app.viewer_scene import MapLayer, splat_payload

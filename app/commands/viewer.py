@@ -28,8 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="browse a finished run folder or a 3DGS .ply instead of running SLAM")
     p.add_argument("--paused", action="store_true", help="start with SLAM paused (press Resume or Step)")
     p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
-                   help="when the browser gets the growing map while SLAM runs: at each keyframe (default), "
-                        "also between keyframes, or only when paused / finished (the page's 'Map updates')")
+                   help="when the browser's 3D view (the growing map, current camera, trajectory) follows "
+                        "SLAM: at each keyframe (default), also between keyframes, or only when paused / "
+                        "finished (the page's 'Map updates')")
     p.add_argument("--browser-splats", type=positive_int, default=None, metavar="N",
                    help="while SLAM runs, send the browser at most about N Gaussians (a thinned preview with "
                         "larger splats; the whole map when paused or finished): for a browser that draws "
