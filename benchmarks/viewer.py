@@ -15,13 +15,15 @@ map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on
 and adding one new 5k-Gaussian keyframe chunk.
 Client side: headless Debian Chromium with SOFTWARE WebGL (SwiftShader), measured by polling
 client.get_render until the splats show. --idle-sizes N,...: Chromium's CPU (cores) and frames
-per second over 20 s on a page that shows a static map of N Gaussians and receives nothing. These figures are worst cases that say nothing about
-a real GPU; sizes above --client-sizes are skipped because SwiftShader needs minutes there.
+per second over 20 s on a page that shows a static map of N Gaussians and receives nothing.
+These figures are worst cases that say nothing about a real GPU; sizes above --client-sizes are
+skipped because SwiftShader needs minutes there.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))   # the browser tests' Chromium flags
 
 from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
 from app.viewer_scene import MapLayer  # noqa: E402
@@ -97,47 +100,58 @@ def server_side(n: int) -> dict:
                 chunks=K + 1)
 
 
-def client_side(n: int, timeout: float) -> dict:
-    import viser
+@contextlib.contextmanager
+def chromium_page(server, init_script: str | None = None):
+    """Headless Chromium (software WebGL, the browser tests' flags) on the server's page, connected."""
     from playwright.sync_api import sync_playwright
+    from test_viewer_browser import ARGS
 
-    from app.viewer import StaticSource, build_viewer
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from test_viewer_browser import ARGS, changed_pixels  # noqa: E402
-
-    m = synthetic_map(n, 20)
-    snap = snapshot_of(freeze_gaussians(m.to_numpy()), list(range(0, 100, 5)))
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     pw = sync_playwright().start()
     browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
     try:
         page = browser.new_page(viewport={"width": 800, "height": 600})
+        if init_script:
+            page.add_init_script(init_script)
         page.goto(f"http://127.0.0.1:{server.get_port()}/")
         page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
-        t_wait = time.monotonic()
-        while not server.get_clients() and time.monotonic() - t_wait < 60:
-            time.sleep(0.05)
-        client = next(iter(server.get_clients().values()))
-        with client.atomic():
-            client.camera.position, client.camera.look_at = (0.0, 0.0, -1.5), (0.0, 0.0, 2.5)
-        empty = np.asarray(client.get_render(120, 160, timeout=60), np.int32)
-        t0 = time.monotonic()
-        app = build_viewer(server, StaticSource(snap))   # the viewer starts pushing now
-        seen = None
-        while time.monotonic() - t0 < timeout:
-            img = np.asarray(client.get_render(120, 160, timeout=max(5.0, timeout)), np.int32)
-            if changed_pixels(img, empty) > 1000:
-                seen = time.monotonic() - t0
-                break
-            time.sleep(0.2)
-        app.close()
-        return dict(gaussians=n, first_splats_in_browser_s=None if seen is None else round(seen, 2),
-                    timed_out=seen is None)
+        yield page
     finally:
         browser.close()
         pw.stop()
+
+
+def client_side(n: int, timeout: float) -> dict:
+    import viser
+    from test_viewer_browser import changed_pixels
+
+    from app.viewer import StaticSource, build_viewer
+
+    m = synthetic_map(n, 20)
+    snap = snapshot_of(freeze_gaussians(m.to_numpy()), list(range(0, 100, 5)))
+    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    try:
+        with chromium_page(server):
+            t_wait = time.monotonic()
+            while not server.get_clients() and time.monotonic() - t_wait < 60:
+                time.sleep(0.05)
+            client = next(iter(server.get_clients().values()))
+            with client.atomic():
+                client.camera.position, client.camera.look_at = (0.0, 0.0, -1.5), (0.0, 0.0, 2.5)
+            empty = np.asarray(client.get_render(120, 160, timeout=60), np.int32)
+            t0 = time.monotonic()
+            app = build_viewer(server, StaticSource(snap))   # the viewer starts pushing now
+            seen = None
+            while time.monotonic() - t0 < timeout:
+                img = np.asarray(client.get_render(120, 160, timeout=max(5.0, timeout)), np.int32)
+                if changed_pixels(img, empty) > 1000:
+                    seen = time.monotonic() - t0
+                    break
+                time.sleep(0.2)
+            app.close()
+    finally:
         server.stop()
+    return dict(gaussians=n, first_splats_in_browser_s=None if seen is None else round(seen, 2),
+                timed_out=seen is None)
 
 
 def browser_cpu_seconds() -> float:
@@ -157,34 +171,24 @@ def browser_cpu_seconds() -> float:
 def idle_browser(n: int, seconds: float = 20.0) -> dict:
     """Chromium's CPU and frame rate on a page showing a static map of n Gaussians, nothing changing."""
     import viser
-    from playwright.sync_api import sync_playwright
 
     from app.viewer_scene import WORLD_SCALE, splat_payload
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from test_viewer_browser import ARGS  # noqa: E402
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     if n:
         server.scene.add_gaussian_splats("/map", *splat_payload(synthetic_map(n, 1).to_numpy()),
                                          scale=1 / WORLD_SCALE)
-    pw = sync_playwright().start()
-    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+    count_frames = """(() => { window.__frames = 0; const raf = window.requestAnimationFrame.bind(window);
+        window.requestAnimationFrame = (cb) => raf((t) => { window.__frames++; cb(t); }); })();"""
     try:
-        page = browser.new_page(viewport={"width": 800, "height": 600})
-        page.add_init_script("""(() => { window.__frames = 0; const raf = window.requestAnimationFrame.bind(window);
-            window.requestAnimationFrame = (cb) => raf((t) => { window.__frames++; cb(t); }); })();""")
-        page.goto(f"http://127.0.0.1:{server.get_port()}/")
-        page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
-        time.sleep(15)                                    # the splats arrive, sort and fade in
-        cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
-        time.sleep(seconds)
-        dt = time.monotonic() - t0
-        return dict(gaussians=n, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
-                    frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2))
+        with chromium_page(server, count_frames) as page:
+            time.sleep(15)                                    # the splats arrive, sort and fade in
+            cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
+            time.sleep(seconds)
+            dt = time.monotonic() - t0
+            return dict(gaussians=n, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
+                        frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2))
     finally:
-        browser.close()
-        pw.stop()
         server.stop()
 
 
@@ -194,15 +198,11 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     import statistics
 
     import viser
-    from playwright.sync_api import sync_playwright
 
     from app.viewer import build_viewer
     from app.worker import SlamWorker
     from splat_core.config import load_config
     from splat_core.pipeline import Pipeline, open_input
-
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
-    from test_viewer_browser import ARGS  # noqa: E402
 
     def pipeline():
         return Pipeline(open_input(None), load_config(config), None, max_frames=frames, engine=engine)
@@ -220,24 +220,18 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
 
         pipe = pipeline()
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-        pw = sync_playwright().start()
-        browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
         try:
-            page = browser.new_page(viewport={"width": 800, "height": 600})
             worker = SlamWorker(pipe, start_paused=True)
             app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats)
-            page.goto(f"http://127.0.0.1:{server.get_port()}/")
-            page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
-            cpu0, t0 = browser_cpu_seconds(), time.monotonic()
-            worker.start()
-            worker.resume()
-            worker.join()
-            browser_cpu.append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
+            with chromium_page(server):
+                cpu0, t0 = browser_cpu_seconds(), time.monotonic()
+                worker.start()
+                worker.resume()
+                worker.join()
+                browser_cpu.append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
             viewer.append(median(pipe.records))
             app.close()
         finally:
-            browser.close()
-            pw.stop()
             server.stop()
     h, v = statistics.median(headless), statistics.median(viewer)
     return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
