@@ -20,6 +20,8 @@ STATES = ("starting", "running", "paused", "finished", "stopped", "error", "brow
 
 # When the browser gets the growing map while SLAM runs (app/viewer_scene.py MapLayer.policy).
 MAP_UPDATE_POLICIES = ("keyframes", "continuous", "off")
+# How the browser draws the map while SLAM runs (MapLayer.running_style); always splats once it stops.
+RUNNING_STYLES = ("splats", "points")
 
 HISTORY_KEYS = ("frame", "tracking_loss", "ate_cm", "seconds", "psnr", "num_gaussians")
 

@@ -56,7 +56,8 @@ class ViewerApp:
                  render_backend: str = "auto", update_hz: float = 2.0, assets: WebAssets | None = None,
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
-                 map_updates: str = "keyframes", browser_splats: int | None = None):
+                 map_updates: str = "keyframes", browser_splats: int | None = None,
+                 draw_while_running: str = "splats"):
         self.server = server
         self.source = source
         self.export_dir = Path(export_dir) if export_dir else None
@@ -73,9 +74,11 @@ class ViewerApp:
         server.initial_camera.look_at = (0.0, 0.0, 1.5)
         server.initial_camera.up = (0.0, -1.0, 0.0)
 
-        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats)
+        self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats,
+                                  draw_while_running)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
-        self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats)
+        self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
+                             draw_while_running)
         self.refine_panel = RefinePanel(server, source, self.wake)
         self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
         self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder)
@@ -116,6 +119,7 @@ class ViewerApp:
             p.step_button.on_click(lambda _: self._control("step_once"))
         p.map_updates.on_update(self._on_map_updates)
         p.browser_splats.on_update(self._on_browser_splats)
+        p.draw_while_running.on_update(self._on_draw_while_running)
         p.keyframe_slider.on_update(self._on_slider)
         p.follow_latest.on_update(self._on_follow)
         p.export_ply_button.on_click(lambda ev: self._export(ev, "ply"))
@@ -137,6 +141,11 @@ class ViewerApp:
 
     def _on_browser_splats(self, _event) -> None:
         self.map_layer.budget = int(self.panels.browser_splats.value) or None
+        self._reapply.set()
+        self.wake()
+
+    def _on_draw_while_running(self, _event) -> None:
+        self.map_layer.running_style = self.panels.draw_while_running.value
         self._reapply.set()
         self.wake()
 

@@ -11,7 +11,7 @@ import viser
 import viser.uplot
 
 from .images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
-from .snapshot import MAP_UPDATE_POLICIES, MapSnapshot
+from .snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),
@@ -82,7 +82,8 @@ def _resize_like(img: np.ndarray, like: np.ndarray) -> np.ndarray:
 
 class Panels:
     def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool,
-                 map_updates: str = "keyframes", browser_splats: int | None = None):
+                 map_updates: str = "keyframes", browser_splats: int | None = None,
+                 draw_while_running: str = "splats"):
         gui = server.gui
         self.server = server
         with gui.add_folder("Run", order=0):
@@ -105,6 +106,11 @@ class Panels:
                 hint="0: the whole map. N: while SLAM runs, a thinned preview of at most about N larger "
                      "splats (the whole map when paused or finished), for a browser that draws WebGL in "
                      "software on the machine running SLAM")
+            self.draw_while_running = gui.add_dropdown(
+                "Draw while running", RUNNING_STYLES, initial_value=draw_while_running, visible=has_controls,
+                hint="How the growing map is drawn while SLAM runs: splats, or a point per Gaussian (a fifth "
+                     "or less of the cost for a browser that draws WebGL in software); splats when "
+                     "paused or finished")
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
         with gui.add_folder("Keyframes", order=2):

@@ -29,6 +29,11 @@ N Gaussians it gets every stride-th Gaussian of each chunk (stride a power of tw
 its footprint grown stride times so the preview still covers the surfaces; pausing or finishing
 sends the whole map. A browser that draws WebGL in software spends CPU in proportion to the
 splats it draws, at least once a second even when nothing changes.
+
+`running_style` (`splatam-viewer --draw-while-running points`) draws each chunk as a point cloud
+while SLAM runs (a point per Gaussian, its colour, a size from the chunk's Gaussians): in
+software WebGL a point costs a fifth of a splat or less (README "Viewer"). Pausing or finishing
+sends splats again.
 """
 
 from __future__ import annotations
@@ -42,7 +47,7 @@ import viser
 
 from splat_core.camera import rotmat_to_quat
 
-from .snapshot import MAP_UPDATE_POLICIES, MapSnapshot, keyframe_buckets
+from .snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot, keyframe_buckets
 
 WORLD_SCALE = 10.0
 
@@ -74,6 +79,24 @@ def splat_payload(arrays: dict, index: np.ndarray | None = None, area: float = 1
     return means * np.float32(WORLD_SCALE), cov, rgbs, opacities
 
 
+POINT_MIN_OPACITY = 0.1   # a point cannot be faint, so the faintest Gaussians are left out
+
+
+def point_payload(arrays: dict, index: np.ndarray | None = None, area: float = 1.0):
+    """(points, rgbs uint8, point size) for viser from raw Gaussian arrays, in the uploaded units:
+    a point per Gaussian at least POINT_MIN_OPACITY opaque, all of one size, the median Gaussian
+    radius of the chunk (its footprint grown `area` times, as for `splat_payload`)."""
+    idx = np.arange(len(arrays["means"])) if index is None else np.asarray(index)
+    logits = np.asarray(arrays["logit_opacities"])[idx].reshape(len(idx))
+    idx = idx[logits >= np.log(POINT_MIN_OPACITY / (1.0 - POINT_MIN_OPACITY))]
+    if not len(idx):
+        return None
+    means = np.asarray(arrays["means"], np.float32)[idx] * np.float32(WORLD_SCALE)
+    rgbs = (np.clip(np.asarray(arrays["colors"], np.float32)[idx], 0.0, 1.0) * 255 + 0.5).astype(np.uint8)
+    radius = float(np.exp(np.median(np.asarray(arrays["log_scales"], np.float64)[idx])))
+    return means, rgbs, radius * np.sqrt(area) * WORLD_SCALE
+
+
 def chunk_fingerprint(arrays: dict, index: np.ndarray) -> bytes:
     """A digest of the Gaussians `index` of raw arrays (equal digests: nothing to re-send)."""
     h = hashlib.blake2b(digest_size=16)
@@ -86,15 +109,20 @@ class MapLayer:
     """Splat chunks per keyframe under `/map` (see the module docstring)."""
 
     def __init__(self, server: viser.ViserServer, consolidate_every: int = 5,
-                 consolidate_interval_s: float = 10.0, policy: str = "keyframes", budget: int | None = None):
+                 consolidate_interval_s: float = 10.0, policy: str = "keyframes", budget: int | None = None,
+                 running_style: str = "splats"):
+        if running_style not in RUNNING_STYLES:
+            raise ValueError(f"map style while running must be one of {RUNNING_STYLES}, not {running_style!r}")
         self.server = server
         self.policy = policy
         self.budget = budget          # most Gaussians sent while SLAM runs (None: all)
+        self.running_style = running_style   # how chunks are drawn while SLAM runs
         self.stride = 1               # every stride-th Gaussian of each chunk is sent
+        self.style = "splats"         # how the chunks sent are drawn
         self.consolidate_every = consolidate_every
         self.consolidate_interval_s = consolidate_interval_s
         self._lock = threading.RLock()
-        self._nodes: dict[str, viser.GaussianSplatHandle] = {}   # name -> handle (non-empty only)
+        self._nodes: dict[str, viser.SceneNodeHandle] = {}       # name -> splats / points (non-empty only)
         self._order: list[str] = []                               # chunk names, keyframe order
         self._limit: int | None = None                           # show chunks 0..limit; None = all
         self._map_version = -1
@@ -121,11 +149,13 @@ class MapLayer:
                 return False
             kf_frames = snap.keyframe_frames
             K = self._keyframes_followed = len(kf_frames)
-            stride = self.stride_for(snap)
-            if snap.map_version == self._map_version and stride == self.stride and not force_consolidate:
+            stride, style = self.stride_for(snap), self.style_for(snap)
+            drawn = (stride, style)
+            if snap.map_version == self._map_version and drawn == (self.stride, self.style) and not force_consolidate:
                 return False
             t0 = time.perf_counter()
-            consolidate = force_consolidate or stride != self.stride or (
+            payload_of = splat_payload if style == "splats" else point_payload
+            consolidate = force_consolidate or drawn != (self.stride, self.style) or (
                 K - self._keyframes_at_consolidation >= self.consolidate_every
                 or time.monotonic() - self._consolidated_at >= self.consolidate_interval_s)
             bucket = keyframe_buckets(snap.gaussians["birth_frame"], kf_frames)
@@ -139,11 +169,11 @@ class MapLayer:
                 is_new = name not in self._order
                 if consolidate or is_new or name == "/map/tail":
                     idx = order[starts[k]:starts[k + 1]:stride]
-                    digest = chunk_fingerprint(snap.gaussians, idx) + stride.to_bytes(8, "little")
+                    digest = chunk_fingerprint(snap.gaussians, idx) + repr(drawn).encode()
                     if self._fingerprints.get(name) == digest:
                         continue
                     self._fingerprints[name] = digest
-                    payloads[name] = splat_payload(snap.gaussians, idx, stride) if len(idx) else None
+                    payloads[name] = payload_of(snap.gaussians, idx, stride) if len(idx) else None
             with self.server.atomic():
                 for name, payload in payloads.items():
                     self._send(name, payload, self._visible(names.index(name), K))
@@ -152,7 +182,7 @@ class MapLayer:
                     self._drop(stale)                                      # but be safe
             self._order = names
             self._map_version = snap.map_version
-            self.stride = stride
+            self.stride, self.style = drawn
             if consolidate:
                 self._keyframes_at_consolidation = K
                 self._consolidated_at = time.monotonic()
@@ -168,6 +198,10 @@ class MapLayer:
         if self.budget is None or snap.state != "running" or n <= self.budget:
             return 1
         return 1 << int(np.ceil(np.log2(n / max(self.budget, 1))))
+
+    def style_for(self, snap: MapSnapshot) -> str:
+        """`running_style` while SLAM runs, splats once it pauses or ends."""
+        return self.running_style if snap.state == "running" else "splats"
 
     def set_policy(self, policy: str) -> None:
         """Change when map changes reach the browser (MAP_UPDATE_POLICIES); the next update consolidates."""
@@ -190,11 +224,22 @@ class MapLayer:
         if payload is None:
             self._drop(name)
             return
+        points = len(payload) == 3
+        if handle is not None and isinstance(handle, viser.PointCloudHandle) != points:
+            self._nodes.pop(name).remove()                            # the style changed: a new node
+            handle = None
         if handle is None:
-            self._nodes[name] = self.server.scene.add_gaussian_splats(
-                name, *payload, scale=1.0 / WORLD_SCALE, visible=visible)
+            scene = self.server.scene
+            self._nodes[name] = (
+                scene.add_point_cloud(name, payload[0], payload[1], point_size=payload[2], point_shape="circle",
+                                      precision="float32", point_shading="flat", scale=1.0 / WORLD_SCALE,
+                                      visible=visible) if points else
+                scene.add_gaussian_splats(name, *payload, scale=1.0 / WORLD_SCALE, visible=visible))
         else:
-            handle.set_gaussians(*payload)
+            if points:
+                handle.points, handle.colors, handle.point_size = payload
+            else:
+                handle.set_gaussians(*payload)
             if handle.visible != visible:
                 handle.visible = visible
 

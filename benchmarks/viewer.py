@@ -2,12 +2,13 @@
 
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
     python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off]
-                                [--browser-splats N] --sizes '' --client-sizes ''
+                                [--browser-splats N] [--draw-while-running splats,points] --sizes '' --client-sizes ''
+    python benchmarks/viewer.py --sizes '' --client-sizes '' --idle-sizes 5000,100000 --idle-styles splats,points
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
-viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page), one
-after the other in this process; the median wall-clock s/frame of each (frame 0 left out) and
-their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
+viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page, once
+for each --draw-while-running style), one after the other in this process; the median wall-clock
+s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
 Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer).
 
 Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import platform
@@ -168,16 +170,18 @@ def browser_cpu_seconds() -> float:
     return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
 
 
-def idle_browser(n: int, seconds: float = 20.0) -> dict:
-    """Chromium's CPU and frame rate on a page showing a static map of n Gaussians, nothing changing."""
+def idle_browser(n: int, style: str = "splats", seconds: float = 20.0) -> dict:
+    """Chromium's CPU and frame rate on a page showing a static map of n Gaussians drawn as `style`
+    (the viewer's splats or points), nothing changing."""
     import viser
 
-    from app.viewer_scene import WORLD_SCALE, splat_payload
+    from app.viewer_scene import MapLayer
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     if n:
-        server.scene.add_gaussian_splats("/map", *splat_payload(synthetic_map(n, 1).to_numpy()),
-                                         scale=1 / WORLD_SCALE)
+        layer = MapLayer(server, running_style=style)
+        layer.update(dataclasses.replace(snapshot_of(freeze_gaussians(synthetic_map(n, 1).to_numpy()), [0]),
+                                         state="running"))
     count_frames = """(() => { window.__frames = 0; const raf = window.requestAnimationFrame.bind(window);
         window.requestAnimationFrame = (cb) => raf((t) => { window.__frames++; cb(t); }); })();"""
     try:
@@ -186,15 +190,16 @@ def idle_browser(n: int, seconds: float = 20.0) -> dict:
             cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
             time.sleep(seconds)
             dt = time.monotonic() - t0
-            return dict(gaussians=n, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
+            return dict(gaussians=n, style=style, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
                         frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2))
     finally:
         server.stop()
 
 
 def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes",
-              browser_splats: int | None = None) -> dict:
-    """Median s/frame of SLAM headless and inside the viewer with a browser watching."""
+              browser_splats: int | None = None, styles: tuple = ("splats",)) -> dict:
+    """Median s/frame of SLAM headless and inside the viewer with a browser watching, for each
+    way of drawing the map while SLAM runs (`styles`); each repeat runs headless, then each style."""
     import statistics
 
     import viser
@@ -210,35 +215,41 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
-    headless, viewer, browser_cpu = [], [], []
+    headless = []
+    viewer = {style: [] for style in styles}
+    browser_cpu = {style: [] for style in styles}
     for _ in range(repeats):
         pipe = pipeline()
         while pipe.step() is not None:
             pass
         pipe.finish()
         headless.append(median(pipe.records))
-
-        pipe = pipeline()
-        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-        try:
-            worker = SlamWorker(pipe, start_paused=True)
-            app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats)
-            with chromium_page(server):
-                cpu0, t0 = browser_cpu_seconds(), time.monotonic()
-                worker.start()
-                worker.resume()
-                worker.join()
-                browser_cpu.append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
-            viewer.append(median(pipe.records))
-            app.close()
-        finally:
-            server.stop()
-    h, v = statistics.median(headless), statistics.median(viewer)
+        for style in styles:
+            pipe = pipeline()
+            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+            try:
+                worker = SlamWorker(pipe, start_paused=True)
+                app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
+                                   draw_while_running=style)
+                with chromium_page(server):
+                    cpu0, t0 = browser_cpu_seconds(), time.monotonic()
+                    worker.start()
+                    worker.resume()
+                    worker.join()
+                    browser_cpu[style].append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
+                viewer[style].append(median(pipe.records))
+                app.close()
+            finally:
+                server.stop()
+    h = statistics.median(headless)
     return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
-                headless_s_per_frame=round(h, 3),
-                viewer_s_per_frame=round(v, 3), viewer_fps_over_headless_fps=round(h / v, 3),
-                browser_cpu_cores=round(statistics.median(browser_cpu), 3),
-                runs=dict(headless=headless, viewer=viewer, browser_cpu_cores=browser_cpu))
+                headless_s_per_frame=round(h, 3), headless_runs=headless,
+                viewer=[dict(draw_while_running=style,
+                             viewer_s_per_frame=round(statistics.median(viewer[style]), 3),
+                             viewer_fps_over_headless_fps=round(h / statistics.median(viewer[style]), 3),
+                             browser_cpu_cores=round(statistics.median(browser_cpu[style]), 3),
+                             runs=dict(viewer=viewer[style], browser_cpu_cores=browser_cpu[style]))
+                        for style in styles])
 
 
 def main() -> int:
@@ -250,6 +261,7 @@ def main() -> int:
     p.add_argument("--client-timeout", type=float, default=180.0)
     p.add_argument("--idle-sizes", default="",
                    help="also Chromium's CPU on a page showing a static map of these sizes, nothing changing")
+    p.add_argument("--idle-styles", default="splats", help="... drawn as splats and/or points (comma-separated)")
     p.add_argument("--slam-frames", type=int, default=0, help="also compare SLAM's rate headless and in the viewer")
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
@@ -258,6 +270,9 @@ def main() -> int:
                    help="the viewer's map update policy during the --slam-frames run")
     p.add_argument("--browser-splats", type=int, default=None,
                    help="the viewer's --browser-splats during the --slam-frames run")
+    p.add_argument("--draw-while-running", default="splats",
+                   help="the viewer's --draw-while-running during the --slam-frames run; 'splats,points' "
+                        "runs the viewer once with each after every headless run")
     args = p.parse_args()
     stdout = sys.stdout
     if args.json:            # viser prints its banner for every server: keep stdout to the JSON
@@ -282,10 +297,12 @@ def main() -> int:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
     if Path(CHROMIUM).exists():
-        out["idle_browser"] = [idle_browser(int(n)) for n in args.idle_sizes.split(",") if n]
+        out["idle_browser"] = [idle_browser(int(n), style) for n in args.idle_sizes.split(",") if n
+                               for style in args.idle_styles.split(",")]
     if args.slam_frames:
         out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats,
-                                     args.map_updates, args.browser_splats)
+                                     args.map_updates, args.browser_splats,
+                                     tuple(args.draw_while_running.split(",")))
         if not args.json:
             print(out["slam_rate"], flush=True)
     if args.json:

@@ -140,6 +140,9 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert app.map_layer.budget == 5000
         app.panels.browser_splats.value = 0
         assert app.map_layer.budget is None
+        assert app.map_layer.running_style == "splats"      # and "Draw while running" the style
+        app.panels.draw_while_running.value = "points"
+        assert app.map_layer.running_style == "points"
         # exports land in the run folder
         name, content, path = app.export_files("ply")
         assert name == "map.ply" and path == tmp_path / "map.ply"
@@ -270,6 +273,44 @@ def test_browser_budget_thins_the_map_while_slam_runs(server):
     _, cov, _, _ = splat_payload(m, np.arange(3))
     _, cov4, _, _ = splat_payload(m, np.arange(3), 4)
     np.testing.assert_allclose(cov4, 4 * cov, rtol=1e-6)
+
+
+def test_points_while_running_then_splats(server):
+    import viser
+
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer_scene import WORLD_SCALE, MapLayer
+
+    m = blob_map(200, 0).to_numpy()
+    m["birth_frame"] = np.repeat([0, 5], 100)                      # two keyframe chunks of 100
+    m["logit_opacities"][:10] = -5.0                               # ten nearly transparent Gaussians
+    m["log_scales"][:] = np.log(0.01)
+
+    def snap(version, state="running"):
+        kfs = tuple(KeyframeView(f, np.eye(4), np.zeros((4, 4, 3), np.uint8)) for f in (0, 5))
+        return MapSnapshot(version, state, 5, 20, version, m, kfs)
+
+    layer = MapLayer(server, running_style="points")
+    assert layer.update(snap(1)) and layer.style == "points"
+    chunk = layer._nodes["/map/kf_000000"]
+    assert isinstance(chunk, viser.PointCloudHandle)
+    assert len(chunk.points) == 90                                 # the faint ten are left out
+    np.testing.assert_allclose(chunk.points, m["means"][10:100] * WORLD_SCALE, rtol=1e-6)
+    np.testing.assert_array_equal(chunk.colors, np.round(np.clip(m["colors"][10:100], 0, 1) * 255))
+    assert chunk.point_size == pytest.approx(0.01 * WORLD_SCALE)   # the chunk's median radius
+    assert not layer.update(snap(1))                               # nothing new, nothing sent
+    layer.show_upto(0)                                             # scrubbing hides point chunks too
+    assert chunk.visible and not layer._nodes["/map/kf_000005"].visible
+    layer.show_upto(None)
+    assert layer.update(snap(2, "paused")) and layer.style == "splats"   # pausing: splats again
+    assert all(isinstance(h, viser.GaussianSplatHandle) for h in layer._nodes.values())
+    assert sum(h.buffer.shape[0] for h in layer._nodes.values()) == 200
+    layer.budget = 50                                              # the budget thins points too
+    assert layer.update(snap(3), force_consolidate=True) and layer.stride == 4 and layer.style == "points"
+    assert len(layer._nodes["/map/kf_000005"].points) == 25
+    assert layer._nodes["/map/kf_000005"].point_size == pytest.approx(0.01 * WORLD_SCALE * 2)
+    with pytest.raises(ValueError, match="points"):
+        MapLayer(server, running_style="dots")
 
 
 def make_run(tmp_path, n=400):

@@ -150,6 +150,36 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
     assert (tmp_path / "run" / "map.ply").is_file() and (tmp_path / "run" / "trajectory.txt").is_file()
 
 
+def test_points_while_running_then_splats_in_the_browser(browser, server):
+    """The map drawn as points while SLAM runs covers about what its splats cover once paused."""
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer_scene import MapLayer
+    from viewer_helpers import blob_map
+
+    m = blob_map(2000, 0).to_numpy()
+    kfs = (KeyframeView(0, np.eye(4), np.zeros((4, 4, 3), np.uint8)),)
+    layer = MapLayer(server, running_style="points")
+    page, client = connect(browser, server)
+    try:
+        look(client, (0.0, 0.0, 0.5), (0.0, 0.0, 2.0))
+        empty = render(client)
+        layer.update(MapSnapshot(1, "running", 0, 10, 1, m, kfs))
+        points = poll_render(client, lambda img: changed_pixels(img, empty) > 1500, 60, "points")
+        layer.update(MapSnapshot(2, "paused", 0, 10, 2, m, kfs))
+        poll_render(client, lambda img: changed_pixels(img, points) > 200, 60, "splats replace points")
+        last = [render(client)]
+
+        def settled(img):        # a new splat node fades in: wait until two renders agree
+            still, last[0] = changed_pixels(img, last[0]) < 20, img
+            return still
+        splats = poll_render(client, settled, 60, "splats faded in")
+        covered_points, covered_splats = changed_pixels(points, empty), changed_pixels(splats, empty)
+        assert 0.5 < covered_points / covered_splats < 2.0, (covered_points, covered_splats)
+        assert page.errors == [] and page.external_requests == []
+    finally:
+        page.close()
+
+
 def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
     """A scripted run with one colour per frame: the slider shows the map at a keyframe, the
     novel-view mode sends our render as the background, the PLY download parses."""

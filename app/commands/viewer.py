@@ -10,7 +10,7 @@ from datetime import datetime
 from pathlib import Path
 
 from app.run_setup import add_run_arguments, setup_from_args
-from app.snapshot import MAP_UPDATE_POLICIES
+from app.snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES
 from splat_core.errors import InputError
 
 DEFAULT_PORT = 8080
@@ -35,6 +35,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="while SLAM runs, send the browser at most about N Gaussians (a thinned preview with "
                         "larger splats; the whole map when paused or finished): for a browser that draws "
                         "WebGL in software on the machine running SLAM (default: the whole map)")
+    p.add_argument("--draw-while-running", default="splats", choices=RUNNING_STYLES,
+                   help="how the browser draws the growing map while SLAM runs: splats (default), or a point "
+                        "per Gaussian, which costs a browser that draws WebGL in software a fifth or less; "
+                        "splats when paused or finished (the page's 'Draw while running')")
 
 
 def positive_int(text: str) -> int:
@@ -107,7 +111,7 @@ def main(args) -> int:
 
     server = start_server(args.host, args.port)
     app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates,
-                      browser_splats=args.browser_splats)
+                      browser_splats=args.browser_splats, draw_while_running=args.draw_while_running)
     url = f"http://{args.host}:{server.get_port()}/"
     print(what, file=sys.stderr)
     print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
