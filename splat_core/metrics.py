@@ -85,6 +85,18 @@ def ate_rmse(est_c2w, ref_c2w) -> float:
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
 
 
+def ate_rmse_segments(est_c2w, ref_c2w, breaks) -> float:
+    """ATE RMSE (metres) with the trajectory cut after each frame index in `breaks` and every
+    piece aligned onto the reference on its own (rigid, no scale), the RMSE taken over all
+    frames. For a reference with a known wrong step (io.checks.inconsistent_steps): the offset
+    that step puts between the pieces is not charged to the estimate. Equals `ate_rmse` with no
+    breaks."""
+    est, ref = _np(est_c2w), _np(ref_c2w)
+    cuts = [0] + sorted({int(b) + 1 for b in breaks if 0 <= int(b) < len(ref) - 1}) + [len(ref)]
+    err = np.concatenate([ate_errors(est[a:b], ref[a:b]) for a, b in zip(cuts, cuts[1:])])
+    return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
+
+
 def ate_mean_legacy(est_w2c, ref_w2c) -> float:
     """The official SplaTAM code's "ATE RMSE" (spec §5.1), metres: the translation COLUMNS of the
     w2c matrices (not camera centres), the reference aligned onto the estimate (rigid, no scale),

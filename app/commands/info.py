@@ -1,6 +1,7 @@
-"""`splatam info --input PATH [--format NAME] [--config NAME] [--json]`: what a capture holds,
-whether its poses, depth units and intrinsics look consistent (the reprojection check of
-formats.md), and which settings layers a run on it would use (budget + format layer)."""
+"""`splatam info --input PATH [--format NAME] [--config NAME] [--steps] [--json]`: what a capture
+holds, whether its poses, depth units and intrinsics look consistent (the reprojection check of
+formats.md; with --steps at every step of the reference poses), and which settings layers a run
+on it would use (budget + format layer)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--resolution", default=None, metavar="WxH|L|native", help="as on splatam run")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.add_argument("--gap", type=int, default=10, help="frames between the two views of the pose check (10)")
+    p.add_argument("--steps", action="store_true",
+                   help="also check every step of the reference poses against the depth (reads every frame): "
+                        "lists steps the images contradict, which an ATE against that reference charges to any method")
 
 
 def settings(source, config) -> dict:
@@ -29,9 +33,14 @@ def settings(source, config) -> dict:
             "tracking_iterations": config.tracking.iterations, "mapping_iterations": config.mapping.iterations}
 
 
-def gather(source, gap: int = 10, config=None) -> dict:
-    """Everything `info` reports, as a JSON-ready dict (with `config`: the settings a run would use)."""
-    from splat_core.io.checks import convention_check, depth_stats, trajectory_length
+def gather(source, gap: int = 10, config=None, steps: bool = False) -> dict:
+    """Everything `info` reports, as a JSON-ready dict (with `config`: the settings a run would use;
+    with `steps`: the check of every reference step)."""
+    import numpy as np
+
+    from splat_core.io.checks import (
+        convention_check, depth_stats, inconsistent_steps, reference_step_residuals, trajectory_length,
+    )
 
     intr = source.intrinsics
     stamps = source.timestamps
@@ -53,11 +62,21 @@ def gather(source, gap: int = 10, config=None) -> dict:
     info["frames_with_pose"] = 0 if c2w is None else int(sum(bool((T == T).all()) for T in c2w))
     info["trajectory_length_m"] = trajectory_length(c2w)
     info["pose_check"] = convention_check(source, gap=gap).to_dict() if c2w is not None else None
+    if steps and c2w is not None and len(source) > 1:
+        residuals = reference_step_residuals(source)
+        info["step_check"] = {"steps": len(residuals), "median_abs_dz_m": float(np.nanmedian(residuals[:, 0])),
+                              "inconsistent": [{"step": [i, i + 1], "median_abs_dz_m": float(residuals[i, 0]),
+                                                "fraction_within_2cm": float(residuals[i, 1])}
+                                               for i in inconsistent_steps(residuals)]}
     warnings = list(getattr(source, "warnings", []))
     if depth.message:
         warnings.append(depth.message)
     if info["pose_check"] and info["pose_check"]["ok"] is False:
         warnings.append("pose check: " + info["pose_check"]["message"])
+    for bad in info.get("step_check", {}).get("inconsistent", []):
+        warnings.append(f"reference poses {bad['step'][0]} -> {bad['step'][1]}: the depth contradicts this step "
+                        f"(median |dz| {_cm(bad['median_abs_dz_m'])}, {bad['fraction_within_2cm'] * 100:.0f}% "
+                        f"within 2 cm); an ATE against this reference charges it to every method")
     info["warnings"] = warnings
     if config is not None:
         info["settings"] = settings(source, config)
@@ -97,6 +116,11 @@ def format_text(info: dict) -> str:
                          f"-> {'OK' if pc['ok'] else 'SUSPICIOUS'}")
         else:
             lines.append(f"pose check   {pc['message']}")
+        if info.get("step_check"):
+            sc = info["step_check"]
+            lines.append(f"step check   {sc['steps']} steps, median |dz| {_cm(sc['median_abs_dz_m'])}, "
+                         f"{len(sc['inconsistent'])} contradicted by the depth"
+                         + "".join(f" ({b['step'][0]}->{b['step'][1]})" for b in sc["inconsistent"]))
     else:
         lines.append("ref. poses   no")
     if info.get("settings"):
@@ -117,6 +141,6 @@ def main(args) -> int:
 
     source = open_capture(args.input, format=args.format)
     config = load_run_config(args.config, source.format_name, resolve_device("auto"), args.resolution)
-    info = gather(source, gap=args.gap, config=config)
+    info = gather(source, gap=args.gap, config=config, steps=args.steps)
     print(json.dumps(info, indent=2) if args.json else format_text(info))
     return 0
