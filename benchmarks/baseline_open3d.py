@@ -169,7 +169,7 @@ def main(argv=None) -> int:
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
     sys.path.insert(0, str(ROOT))
     from splat_core.io import open_capture
-    from splat_core.io.checks import inconsistent_steps, reference_step_residuals
+    from splat_core.io.checks import reference_breaks
     from splat_core.metrics import ate_rmse, ate_rmse_segments
 
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
@@ -189,8 +189,7 @@ def main(argv=None) -> int:
             status = 1
             continue
         colors, depths, intr, ref, io_s = load_frames(path, args.max_frames)
-        breaks = [] if ref is None else [b for b in inconsistent_steps(reference_step_residuals(open_capture(path)))
-                                         if b < len(depths) - 1]
+        breaks = [b for b in reference_breaks(open_capture(path)) if b < len(depths) - 1]
         runs = [("dense", v) for v in voxel_sizes] if "dense" in methods else []
         runs += [("odometry", None)] if "odometry" in methods else []
         for method, voxel_size in runs:

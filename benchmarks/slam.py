@@ -78,16 +78,6 @@ def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: 
     return result
 
 
-def reference_breaks(path: Path) -> tuple[object, list[int]]:
-    """The capture and the steps of its reference poses that its depth contradicts
-    (splat_core.io.checks.inconsistent_steps; README "7-Scenes' reference")."""
-    from splat_core.io import open_capture
-    from splat_core.io.checks import inconsistent_steps, reference_step_residuals
-
-    src = open_capture(path)
-    return src, inconsistent_steps(reference_step_residuals(src)) if src.has_reference_poses else []
-
-
 def split_ate_cm(run_dir: Path, src, breaks: list[int]) -> float | None:
     """ATE of a run with the reference cut at `breaks`, each piece aligned on its own
     (metrics.ate_rmse_segments); frames matched by timestamp. None if the run left no trajectory."""
@@ -121,6 +111,8 @@ def main() -> None:
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     sys.path.insert(0, str(ROOT))
+    from splat_core.io import open_capture
+    from splat_core.io.checks import reference_breaks
 
     work = Path(args.work).resolve() if args.work else Path(tempfile.mkdtemp(prefix="splatam_bench_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -133,7 +125,8 @@ def main() -> None:
             if not path.is_dir():
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue
-            checks[seq] = reference_breaks(path)
+            src = open_capture(path)
+            checks[seq] = (src, reference_breaks(src))    # README "7-Scenes' reference"
         for entry in args.presets.split(","):
             preset, _, rest = entry.partition("@")
             engine_of_entry, _, checkout = rest.partition("@")
@@ -145,9 +138,10 @@ def main() -> None:
                        **({"code": str(code)} if checkout else {}),
                        **run_one(path, preset, out, args.max_frames, args.device, engine, code),
                        "machine": machine(), "run_dir": str(out)}
-                if checks.get(seq, (None, []))[1]:
-                    row["reference_breaks"] = checks[seq][1]
-                    row["ate_rmse_split_cm"] = split_ate_cm(out, *checks[seq])
+                src, breaks = checks.get(seq, (None, []))
+                if breaks:
+                    row["reference_breaks"] = breaks
+                    row["ate_rmse_split_cm"] = split_ate_cm(out, src, breaks)
                 results.append(row)
                 if not args.json:
                     print(json.dumps(row), flush=True)

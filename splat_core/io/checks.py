@@ -213,3 +213,8 @@ def inconsistent_steps(residuals: np.ndarray, window: int = 10, ratio: float = S
                 and np.median(frac[near]) >= consistent):
             flagged.append(i)
     return flagged
+
+
+def reference_breaks(source) -> list[int]:
+    """`inconsistent_steps` of a capture's reference poses ([] when it has none)."""
+    return inconsistent_steps(reference_step_residuals(source)) if source.has_reference_poses else []
