@@ -12,12 +12,40 @@ Pipeline, which for nerfcapture:// waits for the first frame.
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 from splat_core.errors import InputError
 
 STREAM = "nerfcapture://"
+
+
+def add_idle_timeout(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
+                   help="nerfcapture://: end after S seconds without a frame (default 30; 0 = never)")
+
+
+@contextmanager
+def ctrl_c_ends(stream, what: str):
+    """The first Ctrl-C ends the stream (the command then finishes normally); a second one aborts."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGINT, previous)
+        print(f"\nCtrl-C: ending the stream, {what} (Ctrl-C again to abort)", file=sys.stderr, flush=True)
+        stream.stop()
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:

@@ -18,7 +18,7 @@ from splat_core.camera import Intrinsics
 # Worker / viewer states shown in the status panel.
 STATES = ("starting", "running", "paused", "finished", "stopped", "error", "browse")
 
-# When the browser gets the growing map while SLAM runs (app/viewer_scene.py MapLayer.policy).
+# When the browser gets the growing map while SLAM runs (app/viewer/scene.py MapLayer.policy).
 MAP_UPDATE_POLICIES = ("keyframes", "continuous", "off")
 # How the browser draws the map while SLAM runs (MapLayer.running_style); always splats once it stops.
 RUNNING_STYLES = ("splats", "points")

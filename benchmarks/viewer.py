@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))   # the browser tests' Chromium flags
 
 from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
-from app.viewer_scene import MapLayer  # noqa: E402
+from app.viewer.scene import MapLayer  # noqa: E402
 from splat_core.gaussians import GaussianMap  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
@@ -175,7 +175,7 @@ def idle_browser(n: int, style: str = "splats", seconds: float = 20.0) -> dict:
     (the viewer's splats or points), nothing changing."""
     import viser
 
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     if n:

@@ -187,10 +187,10 @@ def test_trajectory_comments_precede_their_pose(tmp_path):
 def test_the_viewer_shows_a_lost_track():
     import viser
 
-    from app.assets import DEFAULT_COLORS
+    from app.viewer.assets import DEFAULT_COLORS
     from app.snapshot import MapSnapshot, empty_gaussians
-    from app.viewer_panels import status_markdown
-    from app.viewer_scene import CameraLayer
+    from app.viewer.panels import status_markdown
+    from app.viewer.scene import CameraLayer
 
     c2w = np.stack([np.eye(4)] * 6)
     snap = lambda frame, lost: MapSnapshot(version=1, state="running", frame_index=frame, total_frames=10,  # noqa: E731

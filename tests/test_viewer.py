@@ -156,7 +156,7 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
 
 def test_consolidation_resends_only_the_chunks_that_changed(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks, no tail
@@ -172,7 +172,7 @@ def test_consolidation_resends_only_the_chunks_that_changed(server):
 
 def test_map_update_policies_hold_back_changes_between_keyframes(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 7], 100)                # two keyframe chunks and a tail
@@ -251,7 +251,7 @@ def test_the_camera_layer_follows_the_map_update_policy(server):
 
 def test_browser_budget_thins_the_map_while_slam_runs(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer, splat_payload
+    from app.viewer.scene import MapLayer, splat_payload
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks of 100
@@ -279,7 +279,7 @@ def test_points_while_running_then_splats(server):
     import viser
 
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import WORLD_SCALE, MapLayer
+    from app.viewer.scene import WORLD_SCALE, MapLayer
 
     m = blob_map(200, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5], 100)                      # two keyframe chunks of 100

@@ -153,7 +153,7 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
 def test_points_while_running_then_splats_in_the_browser(browser, server):
     """The map drawn as points while SLAM runs covers about what its splats cover once paused."""
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
     from viewer_helpers import blob_map
 
     m = blob_map(2000, 0).to_numpy()
@@ -215,7 +215,7 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         page.get_by_label("Follow latest").check()
         poll_render(client, lambda img: green(img) > 100, 60, "latest map again")
         # novel view: our renderer draws the background, WebGL splats hidden for this client
-        view = wait_until(lambda: app.novel_views.get(client.client_id), 10, what="novel view")
+        view = wait_until(lambda: app.viewer.novel_views.get(client.client_id), 10, what="novel view")
         view.mode_dropdown.value = "Our render: colour"
         wait_until(lambda: view.frames_sent >= 1, 120, what="a background image")
         assert view._shadow is not None

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from app.snapshot import MapSnapshot, freeze_gaussians
-from app.viewer_measure import MeasureTool, pick_point
+from app.viewer.measure import MeasureTool, pick_point
 from app.worker import SlamWorker
 from splat_core.camera import Intrinsics, invert_pose
 from splat_core.gaussians import GaussianMap
@@ -132,7 +132,7 @@ def test_export_panel_exports_every_format_while_slam_runs(server, tmp_path):
 @pytest.fixture
 def video_panel(server, tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg not installed (pip install '.[video]')")
-    from app.viewer_video import CameraPathPanel
+    from app.viewer.video_panel import CameraPathPanel
 
     snap = snapshot_of(two_walls())
     return CameraPathPanel(server, lambda: snap, export_dir=tmp_path, render_backend="cpu")

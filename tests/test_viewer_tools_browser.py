@@ -48,7 +48,7 @@ def open_folder(page, title: str) -> None:
 def test_measure_video_and_export_in_the_page(browser, server, tmp_path):  # noqa: F811
     from app.video import read_mp4
     from app.viewer import StaticSource, build_viewer
-    from app.viewer_export import LABELS
+    from app.viewer.export_panel import LABELS
     from splat_core.io.map_files import read_map_file
 
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg not installed")

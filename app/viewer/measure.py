@@ -84,7 +84,7 @@ class MeasureTool:
         self.click(invert_pose(w2c), intr, event.ray_direction)
 
     def _gaussians(self):
-        from .video import gaussians_of
+        from ..video import gaussians_of
 
         snap = self.snapshot_fn()
         if snap is None or snap.num_gaussians == 0:

@@ -24,7 +24,7 @@ import viser
 
 from splat_core.errors import InputError
 
-from .snapshot import MapSnapshot, freeze_gaussians
+from ..snapshot import MapSnapshot, freeze_gaussians
 
 log = logging.getLogger(__name__)
 

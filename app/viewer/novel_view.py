@@ -19,7 +19,7 @@ import numpy as np
 
 from splat_core.camera import Intrinsics, invert_pose, pose_matrix, quat_to_rotmat_np
 
-from .images import colorize_depth, colorize_silhouette, to_uint8
+from ..images import colorize_depth, colorize_silhouette, to_uint8
 
 log = logging.getLogger(__name__)
 

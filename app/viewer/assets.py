@@ -13,9 +13,9 @@ from pathlib import Path
 import yaml
 
 # web_assets/ in a source checkout; shipped as app/web_assets/ in an installed wheel.
-ASSETS_DIR = next((d for d in (Path(__file__).resolve().parent / "web_assets",
-                               Path(__file__).resolve().parent.parent / "web_assets") if d.is_dir()),
-                  Path(__file__).resolve().parent.parent / "web_assets")
+_APP = Path(__file__).resolve().parent.parent
+ASSETS_DIR = next((d for d in (_APP / "web_assets", _APP.parent / "web_assets") if d.is_dir()),
+                  _APP.parent / "web_assets")
 
 DEFAULT_COLORS = {
     "estimated": (232, 112, 38), "reference": (40, 170, 90), "keyframe": (60, 110, 230),

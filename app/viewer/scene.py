@@ -47,7 +47,7 @@ import viser
 
 from splat_core.camera import rotmat_to_quat
 
-from .snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot, keyframe_buckets
+from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot, keyframe_buckets
 
 WORLD_SCALE = 10.0
 

@@ -10,8 +10,8 @@ import numpy as np
 import viser
 import viser.uplot
 
-from .images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
-from .snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
+from ..images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
+from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),

@@ -17,8 +17,8 @@ import viser
 
 from splat_core.errors import InputError
 
-from .viewer_download import produce_and_send
-from .exports import EXPORT_SUFFIXES, FORMATS, export_map
+from .download import produce_and_send
+from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",

@@ -21,9 +21,9 @@ from splat_core.camera import Intrinsics, invert_pose
 from splat_core.camera_path import CameraPath
 from splat_core.errors import InputError
 
-from .viewer_download import produce_and_send
+from .download import produce_and_send
 from .novel_view import browser_camera
-from .viewer_scene import wxyz_position
+from .scene import wxyz_position
 
 
 SIZES = ("640x480", "320x240", "1280x720", "1920x1080")
@@ -159,7 +159,7 @@ class CameraPathPanel:
     def render_video(self, out: Path | None = None) -> Path | None:
         """Render the path into an MP4 (the export folder's camera_path.mp4 by default) from the
         latest snapshot; returns the path, or None when another render is running or it was cancelled."""
-        from .video import Cancelled, parse_size, render_frames, write_mp4
+        from ..video import Cancelled, parse_size, render_frames, write_mp4
 
         if len(self.c2ws) < 2:
             raise InputError("the camera path needs at least two keyframes")

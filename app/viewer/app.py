@@ -28,15 +28,15 @@ from splat_core.gaussians import Gaussians
 from .assets import WebAssets, apply_theme, load_assets
 from splat_core.metrics import psnr
 
-from .images import colorize_depth, depth_max_of, mosaic, to_uint8
+from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
-from .snapshot import MapSnapshot
-from .viewer_export import ExportPanel
-from .viewer_measure import MeasureTool
-from .viewer_panels import Panels
-from .viewer_refine import RefinePanel
-from .viewer_scene import CameraLayer, MapLayer, wxyz_position
-from .viewer_video import CameraPathPanel
+from ..snapshot import MapSnapshot
+from .export_panel import ExportPanel
+from .measure import MeasureTool
+from .panels import Panels
+from .refine_panel import RefinePanel
+from .scene import CameraLayer, MapLayer, wxyz_position
+from .video_panel import CameraPathPanel
 
 log = logging.getLogger(__name__)
 
