@@ -19,7 +19,7 @@ from splat_core.errors import InputError
 from splat_core.io.detect import FORMATS
 from splat_core.pipeline import Pipeline
 from splat_core.resolution import capture_size, parse_resolution, working_size
-from splat_core.synthetic_phone import SyntheticPhoneCapture
+from splat_core.synthetic import SyntheticPhoneCapture
 
 BUDGETS = ("cpu", "cpu_dense", "splatam", "splatam_s")
 SOURCE_FORMATS = (*FORMATS, "synthetic", "nerfcapture-stream")
