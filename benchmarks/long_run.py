@@ -78,7 +78,7 @@ def first_orbit(c2w) -> int:
 
 def child_memory(args) -> dict:
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     from splat_core.synthetic import SyntheticSource
 
     w, h = args.size
@@ -118,7 +118,7 @@ def child_memory(args) -> dict:
 
 def child_time(args) -> dict:
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     from splat_core.synthetic import CorridorSource
 
     w, h = args.size

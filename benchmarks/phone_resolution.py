@@ -28,8 +28,8 @@ import torch  # noqa: E402
 from benchmarks.slam import machine  # noqa: E402
 from splat_core import metrics as M  # noqa: E402
 from splat_core.config import load_config  # noqa: E402
-from splat_core.pipeline import Pipeline  # noqa: E402
-from splat_core.resolution import parse_resolution  # noqa: E402
+from splat_core.run import Pipeline  # noqa: E402
+from splat_core.run.resolution import parse_resolution  # noqa: E402
 from splat_core.synthetic import SyntheticPhoneCapture  # noqa: E402
 
 

@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from splat_core.config import load_config
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.pixel_selection import choose_pixels
 from splat_core.render import render
 from splat_core.synthetic import SyntheticSource

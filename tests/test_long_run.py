@@ -7,7 +7,7 @@ import tracemalloc
 import numpy as np
 
 from splat_core.config import load_config
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.synthetic import SyntheticSource
 from splat_core.synthetic import PERIOD, CorridorSource
 

@@ -17,7 +17,7 @@ from splat_core.errors import InputError
 from splat_core.io.ply import read_ply, write_ply
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 
-from viewer_helpers import FakePipeline, blob_map, wait_until
+from helpers.viewer import FakePipeline, blob_map, wait_until
 
 
 def test_keyframe_buckets_show_the_map_as_it_was():
@@ -96,14 +96,6 @@ def test_worker_live_render_with_the_real_renderer():
     assert snap.live.render_color.shape == (30, 40, 3)
     assert snap.live.render_alpha.max() > 0.5         # the patch covers the image centre
     assert np.isfinite(snap.live.psnr)
-
-
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
 
 
 def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):

@@ -23,11 +23,11 @@ import torch
 import viser
 
 from splat_core.camera import Intrinsics, invert_pose
-from splat_core.gaussians import Gaussians
 
 from .assets import WebAssets, apply_theme, load_assets
 from splat_core.metrics import psnr
 
+from ..video import gaussians_of
 from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from ..snapshot import MapSnapshot
@@ -93,7 +93,7 @@ class ViewerApp:
         self._snapshot: MapSnapshot | None = None
         self.applied: MapSnapshot | None = None
         self._keyframe_view_of: tuple | None = None   # (position, frame) last sent to the panel
-        self._render_cache: tuple | None = None   # (map_version, birth limit, Gaussians)
+        self._render_cache: tuple | None = None   # (map, birth limit, Gaussians born up to it)
         self._programmatic = 0
         self._lock = threading.RLock()
         self._stop = threading.Event()
@@ -344,18 +344,16 @@ class ViewerApp:
             return None
         if birth_limit is None and self._scrub is not None and snap.keyframes:
             birth_limit = snap.keyframes[min(self._scrub, len(snap.keyframes) - 1)].frame_index
-        key = (snap.map_version, id(snap.gaussians["means"]), birth_limit)
-        cache = self._render_cache
-        if cache is None or cache[0] != key:
-            g = snap.gaussians
-            keep = slice(None) if birth_limit is None else np.asarray(g["birth_frame"]) <= birth_limit
-            t = lambda a: torch.as_tensor(np.ascontiguousarray(np.asarray(a)[keep]), dtype=torch.float32)  # noqa
-            gaussians = Gaussians(t(g["means"]), t(g["colors"]), t(g["rotations"]),
-                                  t(g["logit_opacities"]), t(g["log_scales"]))
-            self._render_cache = cache = (key, gaussians)
+        gaussians = gaussians_of(snap.gaussians)
+        if birth_limit is not None:     # the map as it was at a keyframe: one selection per map and keyframe
+            key = (snap.map_version, id(snap.gaussians), birth_limit)
+            if self._render_cache is None or self._render_cache[0] != key:
+                keep = torch.as_tensor(np.asarray(snap.gaussians["birth_frame"]) <= birth_limit)
+                self._render_cache = (key, gaussians.select(keep.to(gaussians.means.device)))
+            gaussians = self._render_cache[1]
         with torch.no_grad():
             return Renderer(snap.near_plane, self.render_backend).render_visible(
-                cache[1], intr, np.asarray(w2c, np.float32))
+                gaussians, intr, np.asarray(w2c, np.float32))
 
     # ------------------------------------------------------------------ export
     def export_files(self, what: str) -> tuple[str, bytes, Path | None]:
