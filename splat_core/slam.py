@@ -84,6 +84,12 @@ class MapVersion:
         return out
 
 
+def snapshot_version(gmap: GaussianMap, number: int, frame_index: int) -> MapVersion:
+    """A MapVersion of `gmap` as it is now (copies: later steps never touch it)."""
+    g = gmap.tensors(detach=True)
+    return MapVersion(number, frame_index, Gaussians(*(x.clone() for x in g.fields())), gmap.birth_frame.clone())
+
+
 @dataclass
 class MapStats:
     added: int = 0
@@ -228,11 +234,9 @@ class SplaTAM:
     # ------------------------------------------------------------------ map versions
     def publish(self, frame_index: int) -> MapVersion:
         """Make the current map the latest version (copy-on-publish: later steps never touch it)."""
-        g = self.map.tensors(detach=True)
-        copy = Gaussians(*(x.clone() for x in g.fields()))
         with self._version_lock:
             self._versions_made += 1
-            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone())
+            self._version = snapshot_version(self.map, self._versions_made, frame_index)
             return self._version
 
     def latest_version(self) -> MapVersion | None:

@@ -24,7 +24,7 @@ import viser
 
 from splat_core.errors import InputError
 
-from ..snapshot import MapSnapshot, freeze_gaussians
+from ..snapshot import MapSnapshot, VersionArrays
 
 log = logging.getLogger(__name__)
 
@@ -165,9 +165,9 @@ class RefinePanel:
             self.button.disabled = self._run_dir is None
 
     def _publish(self, job) -> None:
-        """Show the job's map as it stands (a frozen copy: the job goes on stepping its tensors)."""
+        """Show the job's map as it stands (a published copy: the job goes on stepping its tensors)."""
         with self._lock:
-            self._refined = freeze_gaussians(job.refiner.map.to_numpy())
+            self._refined = VersionArrays(job.refiner.publish())
             self._generation += 1
         self._wake()
 
