@@ -1,6 +1,6 @@
 """`splatam info --input PATH [--format NAME] [--config NAME] [--steps] [--json]`: what a capture
 holds, whether its poses, depth units and intrinsics look consistent (the reprojection check of
-formats.md; with --steps at every step of the reference poses), and which settings layers a run
+docs/formats.md; with --steps at every step of the reference poses), and which settings layers a run
 on it would use (budget + format layer)."""
 
 from __future__ import annotations

@@ -193,7 +193,7 @@ class ViewerApp:
         # Consolidate (refresh every chunk) when the run pauses, ends, or in browse mode.
         force = state_changed and snap.state in ("paused", "finished", "stopped", "browse")
         # The 3D scene (map, cameras, trajectories) follows the map update policy, and shows at once
-        # when tracking is lost or found: any scene message makes viser's page redraw (README "Viewer").
+        # when tracking is lost or found: any scene message makes viser's page redraw (docs/viewer-notes.md §3).
         if force or self.map_layer.follows(snap) or snap.tracking_lost != self.camera_layer.lost_shown:
             if self.map_layer.update(snap, force_consolidate=force) and self.first_map_at is None \
                     and snap.num_gaussians:
