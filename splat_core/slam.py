@@ -68,9 +68,23 @@ class MapVersion:
     frame_index: int              # the newest frame mapped into it (-1: empty map)
     gaussians: Gaussians          # detached tensors, never modified after publishing
     birth_frame: torch.Tensor
+    ready: object = None          # CUDA: an event recorded after the copy on the publishing stream
 
     def __len__(self) -> int:
         return len(self.gaussians)
+
+    def wait_ready(self) -> "MapVersion":
+        """Make the calling thread's current CUDA stream wait for the copy (no host wait), and tell
+        torch's allocator that stream uses these tensors (their memory, from the mapper's stream,
+        is not reused before the reader's queued work is done). Nothing to do on the CPU."""
+        if self.ready is not None:
+            stream = torch.cuda.current_stream(self.gaussians.means.device)
+            stream.wait_event(self.ready)
+            g = self.gaussians
+            for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales, self.birth_frame):
+                if x.is_cuda:
+                    x.record_stream(stream)
+        return self
 
     def to_numpy(self) -> dict[str, np.ndarray]:
         g = self.gaussians
@@ -209,14 +223,20 @@ class SplaTAM:
         """Make the current map the latest version (copy-on-publish: later steps never touch it)."""
         g = self.map.tensors(detach=True)
         copy = Gaussians(*(x.clone() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
+        ready = None
+        if self.device.type == "cuda":     # the live engine's mapper publishes from its own stream
+            ready = torch.cuda.Event()
+            ready.record(torch.cuda.current_stream(self.device))
         with self._version_lock:
             self._versions_made += 1
-            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone())
+            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone(), ready)
             return self._version
 
     def latest_version(self) -> MapVersion | None:
+        """The newest version, ready for the calling thread's CUDA stream (MapVersion.wait_ready)."""
         with self._version_lock:
-            return self._version
+            version = self._version
+        return version.wait_ready() if version is not None else None
 
     # ------------------------------------------------------------------ state (checkpoints)
     def state_arrays(self) -> dict:
