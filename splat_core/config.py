@@ -7,7 +7,7 @@
     load_config("cpu+record3d")             a format layer named explicitly (replaces the detected one)
     load_config("my.yaml")                  any file; it may name `base: splatam` to start from a preset
 
-Budgets (configs/*.yaml: cpu, cpu_dense, splatam, splatam_s) set iterations, learning rates,
+Budgets (configs/*.yaml: cpu, cpu_dense, gpu, splatam, splatam_s) set iterations, learning rates,
 resolution and window. Format layers (configs/formats/<format>.yaml, one per capture format,
 applied by themselves for the detected format) may set only FORMAT_KEYS: depth range, confidence,
 depth upsampling, keyframe rules. The layer is applied first, so a budget's iteration counts hold
