@@ -31,7 +31,7 @@ for seq in "${SEQS[@]}"; do
     echo "gpu_prepare.sh: $DATA/$seq not found (skipped)" >&2
   fi
 done
-git check-ignore -q .whl .gpudata || { echo "gpu_prepare.sh: .whl/.gpudata are not ignored by git" >&2; exit 1; }
+{ git check-ignore -q .whl && git check-ignore -q .gpudata; } || { echo "gpu_prepare.sh: .whl/.gpudata are not ignored by git" >&2; exit 1; }
 du -sh .whl .gpudata/* 2>/dev/null
 echo "tracked + untracked-not-ignored files: $(git ls-files -co --exclude-standard | xargs du -cb 2>/dev/null | tail -1)"
 GSPLAT=$(ls .whl/gsplat-*.whl | head -1)

@@ -14,6 +14,8 @@ import torch
 
 
 def to_device(array, dtype: torch.dtype, device) -> torch.Tensor:
+    if torch.is_tensor(array) and array.device.type != "cpu":
+        return array.to(device=device, dtype=dtype)
     t = torch.as_tensor(np.asarray(array), dtype=dtype)
     device = torch.device(device)
     if device.type != "cuda":
