@@ -2,10 +2,11 @@
 # Every CUDA figure of docs/gpu.md in one run on a GPU machine; JSON under $OUT (default ./gpu_out).
 #
 #   bash benchmarks/gpu.sh [--data DIR] [--sequences a,b] [--stages setup,pytest,slam,render,viewer]
-#                          [--out DIR] [--dry-run-cpu]
+#                          [--out DIR] [--budget SECONDS] [--dry-run-cpu]
 #
-# Stages (each under its own `timeout`; a stage that fails or times out is recorded and the next
-# one runs):
+# Stages (each under its own `timeout`, cut to what is left of --budget, default 540 s, so the
+# summary is written inside a 600 s device call; a stage that fails or times out is recorded and
+# the next one runs):
 #   setup   installs the wheels carried in .whl/ (pip --no-index --target /tmp/site), then imports
 #           gsplat and renders once so its CUDA kernels compile (TORCH_CUDA_ARCH_LIST=9.0)
 #   pytest  pytest -m cuda on the test files that have CUDA tests        -> pytest_cuda.json
@@ -13,9 +14,9 @@
 #           background right after setup, while pytest runs: its accuracy is the reference, its
 #           speed is marked concurrent) and then the `gpu` preset live, one run at a time, alone
 #           on the GPU, on each sequence                                  -> slam.json
-#   render  benchmarks/render.py --backends cuda                          -> render.json
 #   viewer  benchmarks/viewer_gpu.py: the `gpu` preset live headless and in the viewer with a
 #           headless websocket client                                     -> viewer.json
+#   render  benchmarks/render.py --backends cuda                          -> render.json
 # and summary.json (machine, per-stage seconds and exit codes, the targets checked, peak GPU
 # memory) and log.txt. --data: the folder holding the real sequences (../shared/data does not
 # travel to the device: benchmarks/gpu_prepare.sh copies them into .gpudata/, which git ignores,
@@ -30,6 +31,8 @@ SEQUENCES="synthetic,7scenes_redkitchen_300,sun3d_3dmatch_fragment1,sun3d_3dmatc
 STAGES="setup,pytest,slam,render,viewer"
 OUTDIR="${OUT:-$REPO/gpu_out}"
 DRY=0
+BUDGET_SET=0
+BUDGET=540          # seconds for the whole script: each stage's limit is cut to what is left
 while [ $# -gt 0 ]; do
   case "$1" in
     --data) DATA="$2"; shift 2 ;;
@@ -37,9 +40,11 @@ while [ $# -gt 0 ]; do
     --stages) STAGES="$2"; shift 2 ;;
     --out) OUTDIR="$2"; shift 2 ;;
     --dry-run-cpu) DRY=1; shift ;;
+    --budget) BUDGET="$2"; BUDGET_SET=1; shift 2 ;;
     *) echo "gpu.sh: unknown argument $1" >&2; exit 2 ;;
   esac
 done
+DEADLINE=$(( $(date +%s) + BUDGET ))
 mkdir -p "$OUTDIR"
 OUTDIR="$(cd "$OUTDIR" && pwd)"
 WORK="${GPU_WORK:-/tmp/splatam_gpu_work}"
@@ -59,6 +64,13 @@ log() { echo "[gpu.sh $(date -u +%H:%M:%S)] $*" | tee -a "$LOG" >&2; }
 run() {
   local name="$1" limit="$2" dest="$3"; shift 3
   [ "$dest" = "-" ] && dest="$LOG"
+  local left=$(( DEADLINE - $(date +%s) - 20 ))      # 20 s kept for the summary
+  if [ "$left" -lt 10 ]; then
+    log "stage $name skipped: the budget (--budget) is spent"
+    echo "{\"stage\": \"$name\", \"rc\": null, \"skipped\": \"budget spent\", \"limit_s\": $limit}" >> "$STAGEFILE"
+    return 1
+  fi
+  [ "$left" -lt "$limit" ] && limit=$left
   local t0=$(date +%s%N)
   log "stage $name (limit ${limit}s): $*"
   timeout --kill-after=15 "$limit" "$@" >>"$dest" 2>>"$LOG"
@@ -88,6 +100,7 @@ tracking: {iterations: 2}
 mapping: {iterations: 2, first_frame_iterations: 4}
 EOF
   GPU_PRESET="$WORK/dry_gpu.yaml"; REF_PRESET="$WORK/dry_splatam.yaml"
+  [ "$BUDGET_SET" = 1 ] || DEADLINE=$(( $(date +%s) + 3600 ))   # the dry run's 2-core timings are no guide to the device's
   L_SETUP=120; L_PYTEST=300; L_REF=600; L_GPU=600; L_RENDER=300; L_VIEWER=300
   RENDER_ARGS="--backends cpu --sizes 160x120 --gaussians 2000 --repeats 2"
   VIEWER_ARGS="--frames 4 --size 80x60 --config $GPU_PRESET --device cpu"
@@ -96,8 +109,8 @@ else
   MAXF=""
   GPU_PRESET="gpu"; REF_PRESET="splatam"
   # Sized for one call of ~8 minutes (docs/gpu.md); each limit ends its stage, not the script.
-  L_SETUP=${L_SETUP:-240}; L_PYTEST=${L_PYTEST:-240}; L_REF=${L_REF:-330}; L_GPU=${L_GPU:-200}
-  L_RENDER=${L_RENDER:-90}; L_VIEWER=${L_VIEWER:-150}
+  L_SETUP=${L_SETUP:-200}; L_PYTEST=${L_PYTEST:-240}; L_REF=${L_REF:-300}; L_GPU=${L_GPU:-180}
+  L_RENDER=${L_RENDER:-60}; L_VIEWER=${L_VIEWER:-120}
   RENDER_ARGS="--backends cuda --sizes 320x240,640x480 --gaussians 50000,200000,1000000 --repeats 21"
   VIEWER_ARGS="--frames 40 --size 640x480 --config gpu --device cuda"
 fi
@@ -192,11 +205,11 @@ if has slam; then
   run slam_gpu "$L_GPU" "$WORK/gpu_runs.jsonl" "$PY" benchmarks/slam.py --sequences "$SEQUENCES" \
       --presets "$GPU_PRESET@live" --data "$DATA" --device "$DEVICE" --work "$WORK/slam" $MAXF
 fi
-if has render; then
-  run render "$L_RENDER" "$OUTDIR/render.json" "$PY" benchmarks/render.py --json $RENDER_ARGS
-fi
 if has viewer; then
   run viewer "$L_VIEWER" "$OUTDIR/viewer.json" "$PY" benchmarks/viewer_gpu.py $VIEWER_ARGS
+fi
+if has render; then
+  run render "$L_RENDER" "$OUTDIR/render.json" "$PY" benchmarks/render.py --json $RENDER_ARGS
 fi
 
 # ------------------------------------------------------------------ summary
