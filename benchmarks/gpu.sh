@@ -118,7 +118,9 @@ log "repo $REPO, data $DATA, sequences $SEQUENCES, stages $STAGES, device $DEVIC
 
 # ------------------------------------------------------------------ setup
 if has setup; then
-  if ls .whl/*.whl >/dev/null 2>&1; then
+  if [ "$DRY" = 1 ]; then
+    log "dry run: the wheels in .whl/ are for the device's Python 3.12; not installed here"
+  elif ls .whl/*.whl >/dev/null 2>&1; then
     run wheels 120 - "$PY" -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
         --target /tmp/site .whl/*.whl
   else
