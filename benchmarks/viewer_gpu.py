@@ -82,7 +82,7 @@ class WebsocketClient(threading.Thread):
 
 def _pipeline(frames: int, config: str, size: tuple[int, int], device: str):
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     from splat_core.synthetic import SyntheticSource
 
     source = SyntheticSource(n_frames=frames, width=size[0], height=size[1], seed=0)

@@ -159,7 +159,7 @@ def test_torch_alignment_on_cuda_matches_the_cpu(monkeypatch):
 def test_gpu_preset_runs_live_on_cuda_with_a_reader_thread():
     import threading
 
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     needs_cuda()
     config = load_config("gpu", overrides={"resolution": [320, 240], "checkpoint_every": 0})
     pipe = Pipeline(SyntheticSource(n_frames=12, width=320, height=240, seed=0), config, device="cuda", engine="live")
