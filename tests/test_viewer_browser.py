@@ -189,7 +189,7 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         page.get_by_label("Follow latest").check()
         poll_render(client, lambda img: green(img) > 100, 60, "latest map again")
         # novel view: our renderer draws the background, WebGL splats hidden for this client
-        view = wait_until(lambda: app.viewer.novel_views.get(client.client_id), 10, what="novel view")
+        view = wait_until(lambda: app.novel_views.get(client.client_id), 10, what="novel view")
         view.mode_dropdown.value = "Our render: colour"
         wait_until(lambda: view.frames_sent >= 1, 120, what="a background image")
         assert view._shadow is not None
