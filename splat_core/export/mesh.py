@@ -28,6 +28,7 @@ from .tsdf import BlockVolume
 CHUNK = 4                      # blocks per chunk side for marching cubes
 MIN_COMPONENT_FACES = 200      # smaller disconnected pieces are removed
 RENDER_MIN_ALPHA = 0.9
+MAX_STEP_VOXELS = 2.0 * np.sqrt(3.0)   # largest TSDF change across a meshed cube, in voxels
 DEPTH_MODES = ("captured", "rendered")
 MESH_SUFFIXES = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
 
@@ -96,16 +97,27 @@ def _chunk_arrays(volume: BlockVolume, chunk: np.ndarray):
     return tsdf, weight, color
 
 
-def _cube_mask(tsdf: np.ndarray, weight: np.ndarray) -> np.ndarray:
-    """True at the origin corner of each cube whose 8 corners are observed and untruncated."""
+def _cube_mask(tsdf: np.ndarray, weight: np.ndarray, max_step: float) -> np.ndarray:
+    """Marks each cube whose 8 corners are observed and untruncated and
+    whose values differ by at most `max_step`: a distance field changes by at most sqrt(3) voxels
+    across a cube, while the false crossings TSDF fusion leaves behind depth edges (free space
+    next to the averaged-in back of an object) jump by more."""
     ok = (weight > 0) & (np.abs(tsdf) < 0.999)
     cube = ok[:-1, :-1, :-1].copy()
+    lo = tsdf[:-1, :-1, :-1].copy()
+    hi = lo.copy()
     for dx in (0, 1):
         for dy in (0, 1):
             for dz in (0, 1):
-                cube &= ok[dx: dx + ok.shape[0] - 1, dy: dy + ok.shape[1] - 1, dz: dz + ok.shape[2] - 1]
+                sl = (slice(dx, dx + ok.shape[0] - 1), slice(dy, dy + ok.shape[1] - 1), slice(dz, dz + ok.shape[2] - 1))
+                cube &= ok[sl]
+                np.minimum(lo, tsdf[sl], out=lo)
+                np.maximum(hi, tsdf[sl], out=hi)
+    cube &= (hi - lo) <= max_step
+    # scikit-image's marching_cubes meshes the cube [x-1, x] x [y-1, y] x [z-1, z] where mask[x, y, z]
+    # is True (measured: tests/test_handoffs.py::test_marching_cubes_mask_convention).
     mask = np.zeros_like(ok)
-    mask[:-1, :-1, :-1] = cube
+    mask[1:, 1:, 1:] = cube
     return mask
 
 
@@ -116,11 +128,12 @@ def extract_mesh(volume: BlockVolume, min_component_faces: int = MIN_COMPONENT_F
     if volume.n == 0:
         raise InputError("nothing was fused: no depth readings at the keyframe poses")
     chunks = np.unique(np.floor_divide(volume.coords[: volume.n], CHUNK), axis=0)
+    max_step = MAX_STEP_VOXELS * volume.voxel / volume.trunc
     verts, faces, colors, offset = [], [], [], 0
     it = chunks if progress is None else progress(chunks, total=len(chunks), unit="chunk", desc="meshing")
     for chunk in it:
         tsdf, weight, color = _chunk_arrays(volume, chunk)
-        mask = _cube_mask(tsdf, weight)
+        mask = _cube_mask(tsdf, weight, max_step)
         if not mask.any():
             continue
         seen = tsdf[(weight > 0) & (np.abs(tsdf) < 0.999)]
