@@ -118,9 +118,9 @@ def test_colmap_tracks_reproject_onto_their_gaussians(finished_run, tmp_path):
             assert image.points2D[el.point2D_idx].point3D_id == pid
             # where pycolmap projects the point, and where the Gaussian projects in the run
             # (camera.py's convention, pixel centres at integers; COLMAP's are at +0.5)
-            assert np.linalg.norm(cam.img_from_cam(image.cam_from_world() * point.xyz) - xy) < 1.0
+            assert np.linalg.norm(cam.img_from_cam(image.cam_from_world() * point.xyz) - xy) < 0.01
             u, v, _ = project_points(gaussian[None], w2c_of[image.name], intr)
-            assert np.hypot(u[0] + 0.5 - xy[0], v[0] + 0.5 - xy[1]) < 1.0
+            assert np.hypot(u[0] + 0.5 - xy[0], v[0] + 0.5 - xy[1]) < 0.01     # (the target: 1 px)
 
 
 # ----------------------------------------------------------------------------- nerfstudio
