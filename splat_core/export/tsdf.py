@@ -70,6 +70,38 @@ def _integrate(slots, coords, tsdf, weight, color, cweight, block, voxel, R, t, 
                         cweight[s, i, j, k] = c0 + 1.0
 
 
+@njit(cache=True)
+def _ray_block_keys(depth, R, t, fx, fy, cx, cy, voxel, block, offsets):
+    """Packed keys of the blocks holding the points at depth + offset along each valid pixel's ray
+    (voxel centres at g * voxel: block b holds voxels b*B .. b*B+B-1)."""
+    H, W = depth.shape
+    n = 0
+    for v in range(H):
+        for u in range(W):
+            if depth[v, u] > 0:
+                n += 1
+    keys = np.empty(n * offsets.shape[0], np.int64)
+    m = 0
+    for v in range(H):
+        for u in range(W):
+            d = depth[v, u]
+            if d <= 0:
+                continue
+            rx, ry = (u - cx) / fx, (v - cy) / fy
+            for o in range(offsets.shape[0]):
+                z = d + offsets[o]
+                xc, yc = rx * z, ry * z
+                key = np.int64(0)
+                for a in range(3):
+                    w = R[a, 0] * xc + R[a, 1] * yc + R[a, 2] * z + t[a]
+                    g = np.int64(np.floor(w / voxel + 0.5))
+                    b = (g // block) + _OFF
+                    key = (key << 21) | b
+                keys[m] = key
+                m += 1
+    return keys
+
+
 class BlockVolume:
     """TSDF voxels in blocks, looked up by block coordinate."""
 
@@ -122,19 +154,13 @@ class BlockVolume:
 
     def touched_blocks(self, depth: np.ndarray, w2c: np.ndarray, intr: Intrinsics) -> np.ndarray:
         """Unique block coordinates within trunc of the frame's depth readings (along each ray)."""
-        v, u = np.nonzero(depth > 0)
-        z = depth[v, u].astype(np.float64)
-        rays = np.stack([(u - intr.cx) / intr.fx, (v - intr.cy) / intr.fy, np.ones_like(z)], 1)
         c2w = invert_pose(np.asarray(w2c, np.float64))
-        size = self.voxel * self.block
-        step = 0.5 * min(size, self.trunc)
+        step = 0.5 * min(self.voxel * self.block, self.trunc)
         offsets = np.arange(-self.trunc, self.trunc + 1e-9, step)
-        keys = []
-        for off in offsets:
-            p = rays * (z + off)[:, None] @ c2w[:3, :3].T + c2w[:3, 3]
-            # voxel centres at g * voxel: block b holds voxels b*B .. b*B+B-1
-            keys.append(pack(np.floor(p / self.voxel + 0.5).astype(np.int64) // self.block))
-        return unpack(np.unique(np.concatenate(keys)))
+        keys = _ray_block_keys(np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(c2w[:3, :3]),
+                               np.ascontiguousarray(c2w[:3, 3]), float(intr.fx), float(intr.fy), float(intr.cx),
+                               float(intr.cy), self.voxel, self.block, offsets)
+        return unpack(np.unique(keys))
 
     def integrate(self, depth: np.ndarray, color: np.ndarray, w2c: np.ndarray, intr: Intrinsics) -> None:
         depth = np.ascontiguousarray(depth, np.float32)
