@@ -59,11 +59,11 @@ def write_colmap(run, out_dir, frames: str = "keyframes", source=None, input_ove
         names, poses = [], []
         for pos, f in enumerate(_progress(export_frames(run, indices, source), len(indices), progress)):
             write_color(tmp / "images" / (f.name + IMAGE_SUFFIX), f.color)
-            add_observations(seeds, pos, f.w2c, f.depth, intr)
+            add_observations(seeds, f.w2c, f.depth, intr)
             names.append(f.name + IMAGE_SUFFIX)
             poses.append(f.w2c)
         _write_model(sparse, intr, names, poses, seeds)
-    tracked = sum(1 for t in seeds.tracks if t)
+    tracked = len(np.unique(np.concatenate([o[0] for o in seeds.observations]))) if names else 0
     return dict(images=len(names), points=tracked, size=[intr.width, intr.height], out=str(out_dir))
 
 
@@ -73,18 +73,18 @@ def _progress(it, total, progress):
 
 def _write_model(sparse: Path, intr: Intrinsics, names, poses, seeds) -> None:
     """cameras.txt, images.txt, points3D.txt. Points that no exported frame sees are left out
-    (COLMAP's points always have a track); POINT3D_ID and IMAGE_ID count from 1."""
-    point_ids = {}
-    per_image = [[] for _ in names]      # (x, y, point3D_id)
-    track_refs = {}                      # point3D_id -> [(image_id, point2D_idx)]
-    for i, track in enumerate(seeds.tracks):
-        if not track:
-            continue
-        pid = point_ids[i] = len(point_ids) + 1
-        refs = track_refs[pid] = []
-        for pos, u, v in track:
-            refs.append((pos + 1, len(per_image[pos])))
-            per_image[pos].append((u + PIXEL_OFFSET, v + PIXEL_OFFSET, pid))
+    (COLMAP's points always have a track); IMAGE_ID and POINT3D_ID count from 1, POINT2D_IDX from 0
+    (a point's place in its image's POINTS2D list)."""
+    seen = [o[0] for o in seeds.observations]
+    all_seen = np.concatenate(seen) if seen else np.zeros(0, np.int64)
+    point_id = np.zeros(len(seeds.xyz), np.int64)
+    tracked = np.unique(all_seen)
+    point_id[tracked] = np.arange(1, len(tracked) + 1)
+    image_of = np.concatenate([np.full(len(s), pos + 1) for pos, s in enumerate(seen)]) if seen else all_seen
+    p2d_idx = np.concatenate([np.arange(len(s)) for s in seen]) if seen else all_seen
+    order = np.argsort(all_seen, kind="stable")               # group the observations by point
+    starts = np.searchsorted(all_seen[order], tracked)
+    ends = np.append(starts[1:], len(order))
 
     (sparse / "cameras.txt").write_text(
         "# Camera list with one line of data per camera:\n#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]\n"
@@ -96,14 +96,17 @@ def _write_model(sparse: Path, intr: Intrinsics, names, poses, seeds) -> None:
     for pos, (name, w2c) in enumerate(zip(names, poses)):
         q, t = colmap_pose(w2c)
         lines.append(" ".join([str(pos + 1), *(repr(float(x)) for x in q), *(repr(float(x)) for x in t), "1", name]))
-        lines.append(" ".join(f"{x:.6f} {y:.6f} {pid}" for x, y, pid in per_image[pos]))
+        idx, u, v = seeds.observations[pos]
+        lines.append(" ".join(f"{x:.6f} {y:.6f} {pid}" for x, y, pid in
+                              zip((u + PIXEL_OFFSET).tolist(), (v + PIXEL_OFFSET).tolist(), point_id[idx].tolist())))
     (sparse / "images.txt").write_text("\n".join(lines) + "\n")
     with open(sparse / "points3D.txt", "w") as f:
         f.write("# 3D point list with one line of data per point:\n"
                 "#   POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n"
-                f"# Number of points: {len(point_ids)}\n")
-        for i, pid in point_ids.items():
-            x, y, z = seeds.xyz[i]
-            r, g, b = seeds.rgb[i]
-            track = " ".join(f"{img} {idx}" for img, idx in track_refs[pid])
-            f.write(f"{pid} {float(x)!r} {float(y)!r} {float(z)!r} {r} {g} {b} 0 {track}\n")
+                f"# Number of points: {len(tracked)}\n")
+        pairs = np.stack([image_of[order], p2d_idx[order]], 1).tolist()
+        for n, i in enumerate(tracked.tolist()):
+            x, y, z = seeds.xyz[i].tolist()
+            r, g, b = seeds.rgb[i].tolist()
+            track = " ".join(f"{img} {j}" for img, j in pairs[starts[n]: ends[n]])
+            f.write(f"{n + 1} {x!r} {y!r} {z!r} {r} {g} {b} 0 {track}\n")

@@ -10,6 +10,7 @@ agrees with its depth (within `max(abs_tol, rel_tol * depth)`), so occluded view
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -25,7 +26,7 @@ class Seeds:
     xyz: np.ndarray              # N x 3 float64 world (the run's frame)
     rgb: np.ndarray              # N x 3 uint8
     gaussian: np.ndarray         # N index into the map's arrays
-    tracks: list = field(default_factory=list)   # per point: [(frame position, u, v)] (our pixel convention)
+    observations: list = field(default_factory=list)   # per frame: (point indices, u, v), our pixel convention
 
 
 def seed_points(arrays: dict, max_points: int = MAX_POINTS, min_opacity: float = MIN_OPACITY) -> Seeds:
@@ -36,12 +37,12 @@ def seed_points(arrays: dict, max_points: int = MAX_POINTS, min_opacity: float =
     if len(keep) == 0:
         raise InputError("the map has no opaque Gaussians to seed points from")
     if len(keep) > max_points:
-        lo = means[keep].min(0)
-        extent = float(np.max(means[keep].max(0) - lo)) + 1e-9
-        cell = extent / max(2.0, np.cbrt(max_points))    # too fine for a surface map: grows below
-        cell = min(cell, extent / 64.0)
+        # Grow the cell from 1 mm until few enough cells are occupied (a surface map: the count
+        # falls with the square of the cell, so the steps are small).
+        pts = means[keep]
+        lo, cell = pts.min(0), 0.001
         while True:
-            cells = np.floor((means[keep] - lo) / cell).astype(np.int64)
+            cells = np.floor((pts - lo) / cell).astype(np.int64)
             key = (cells[:, 0] * 2_097_152 + cells[:, 1]) * 2_097_152 + cells[:, 2]
             order = np.lexsort((-opacity[keep], key))     # by cell, most opaque first
             first = np.ones(len(order), bool)
@@ -49,9 +50,9 @@ def seed_points(arrays: dict, max_points: int = MAX_POINTS, min_opacity: float =
             if first.sum() <= max_points:
                 keep = np.sort(keep[order[first]])
                 break
-            cell *= 1.2
+            cell *= 1.15
     rgb = np.clip(np.round(np.asarray(arrays["colors"], np.float64)[keep] * 255.0), 0, 255).astype(np.uint8)
-    return Seeds(means[keep], rgb, keep, [[] for _ in keep])
+    return Seeds(means[keep], rgb, keep, [])
 
 
 def project_points(xyz: np.ndarray, w2c: np.ndarray, intr: Intrinsics):
@@ -64,17 +65,16 @@ def project_points(xyz: np.ndarray, w2c: np.ndarray, intr: Intrinsics):
     return u, v, z
 
 
-def add_observations(seeds: Seeds, position: int, w2c: np.ndarray, depth: np.ndarray, intr: Intrinsics,
+def add_observations(seeds: Seeds, w2c: np.ndarray, depth: np.ndarray, intr: Intrinsics,
                      abs_tol: float = 0.05, rel_tol: float = 0.05) -> np.ndarray:
-    """Append (position, u, v) to the track of every seed seen in this frame; returns their indices."""
+    """Record which seeds the next frame sees, and where (appended to seeds.observations)."""
     u, v, z = project_points(seeds.xyz, w2c, intr)
     ui, vi = np.round(u), np.round(v)
     inside = (z > 0.01) & (ui >= 0) & (vi >= 0) & (ui <= intr.width - 1) & (vi <= intr.height - 1)
     idx = np.flatnonzero(inside)
     d = depth[vi[idx].astype(np.int64), ui[idx].astype(np.int64)]
     seen = idx[(d > 0) & (np.abs(z[idx] - d) <= np.maximum(abs_tol, rel_tol * d))]
-    for i in seen:
-        seeds.tracks[i].append((position, float(u[i]), float(v[i])))
+    seeds.observations.append((seen, u[seen], v[seen]))
     return seen
 
 
@@ -87,5 +87,4 @@ def write_points_ply(path, xyz: np.ndarray, rgb: np.ndarray) -> None:
     rec = np.empty(n, dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
     rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     rec["r"], rec["g"], rec["b"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    from pathlib import Path
     Path(path).write_bytes(header + rec.tobytes())
