@@ -28,7 +28,7 @@ from .tsdf import BlockVolume
 CHUNK = 4                      # blocks per chunk side for marching cubes
 MIN_COMPONENT_FACES = 200      # smaller disconnected pieces are removed
 RENDER_MIN_ALPHA = 0.9
-MAX_STEP_VOXELS = 2.0 * np.sqrt(3.0)   # largest TSDF change across a meshed cube, in voxels
+MAX_STEP_VOXELS = 3.0 * np.sqrt(3.0)   # largest TSDF change across a meshed cube, in voxels (benchmarks/mesh.py)
 DEPTH_MODES = ("captured", "rendered")
 MESH_SUFFIXES = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
 
@@ -98,10 +98,11 @@ def _chunk_arrays(volume: BlockVolume, chunk: np.ndarray):
 
 
 def _cube_mask(tsdf: np.ndarray, weight: np.ndarray, max_step: float) -> np.ndarray:
-    """Marks each cube whose 8 corners are observed and untruncated and
-    whose values differ by at most `max_step`: a distance field changes by at most sqrt(3) voxels
-    across a cube, while the false crossings TSDF fusion leaves behind depth edges (free space
-    next to the averaged-in back of an object) jump by more."""
+    """Marks each cube whose 8 corners are observed and untruncated and whose values differ by at
+    most `max_step`. A distance field changes by at most sqrt(3) voxels across a cube; the
+    projective distance TSDF fusion stores grows faster on surfaces seen at a grazing angle
+    (hence the allowance of 3 sqrt(3)), and the false crossings fusion leaves behind depth edges
+    (free space next to the averaged-in back of an object) jump by more than that."""
     ok = (weight > 0) & (np.abs(tsdf) < 0.999)
     cube = ok[:-1, :-1, :-1].copy()
     lo = tsdf[:-1, :-1, :-1].copy()
