@@ -19,7 +19,7 @@ import numpy as np
 
 from splat_core.io.atomic import write_text_atomic
 
-from .viewer_scene import WORLD_SCALE, splat_payload
+from .viewer.scene import WORLD_SCALE, splat_payload
 
 
 def html_page(arrays: dict) -> str:

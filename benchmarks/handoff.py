@@ -23,7 +23,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
-from slam import machine  # noqa: E402
+from common import machine  # noqa: E402
 
 from splat_core.camera import invert_pose  # noqa: E402
 from splat_core.export import write_colmap, write_nerfstudio  # noqa: E402

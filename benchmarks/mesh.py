@@ -30,7 +30,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
-from slam import machine  # noqa: E402
+from common import machine  # noqa: E402
 
 from splat_core.camera import invert_pose  # noqa: E402
 from splat_core.export.evaluate import depth_points, score_against_points, score_against_scene  # noqa: E402
@@ -42,7 +42,7 @@ SYN_SIZE = (320, 240)
 
 def synthetic_run(folder: Path, n_frames: int):
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     from splat_core.synthetic import SyntheticSource
 
     src = SyntheticSource(n_frames=n_frames, width=SYN_SIZE[0], height=SYN_SIZE[1])
@@ -80,7 +80,7 @@ def score_synthetic(folder: Path, n_frames: int, modes) -> dict:
 
 
 def score_real(folder: Path, modes, every: int = 5) -> dict:
-    from splat_core.pipeline import prepare_frame
+    from splat_core.run.frame_feed import prepare_frame
 
     run = load_run_data(folder)
     source = open_run_capture(run)

@@ -1,6 +1,6 @@
 """Cameras: intrinsics, pose <-> quaternion, constant-velocity prediction.
 
-Conventions (DESIGN.md §3), stated once here:
+Conventions (docs/design.md, Conventions), stated once here:
 - Camera axes are OpenCV: +x right, +y down, +z forward.
 - Pixel centres sit at integer image coordinates: pixel (u, v) (column u, row v) is the point
   x = u, y = v, and a camera point (X, Y, Z) projects to (fx X/Z + cx, fy Y/Z + cy). So a
@@ -76,6 +76,11 @@ class Intrinsics:
 
     def to_dict(self) -> dict:
         return dict(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Intrinsics":
+        """The inverse of to_dict (extra keys ignored); KeyError / TypeError when one is missing."""
+        return cls(**{k: d[k] for k in ("fx", "fy", "cx", "cy", "width", "height")})
 
 
 # ----------------------------------------------------------------------------- quaternions (torch)
@@ -161,7 +166,7 @@ OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def c2w_opengl_to_opencv(c2w_gl: np.ndarray) -> np.ndarray:
-    """Camera axes x right, y up, z backward (OpenGL/ARKit) -> OpenCV (formats.md)."""
+    """Camera axes x right, y up, z backward (OpenGL/ARKit) -> OpenCV (docs/formats.md)."""
     return np.asarray(c2w_gl, dtype=np.float64) @ OPENGL_TO_OPENCV
 
 

@@ -19,10 +19,10 @@ from splat_core.export import write_colmap, write_nerfstudio
 from splat_core.export.nerfstudio import nerfstudio_c2w
 from splat_core.export.seed_points import project_points
 from splat_core.io.ply import read_ply
-from splat_core.pipeline import Pipeline, open_input
+from splat_core.run import Pipeline, open_input
 from splat_core.refine.run_data import load_run_data, open_run_capture
-import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
-from fixture_scene import PLANES, make_sequence
+from helpers import captures as fixtures
+from helpers.scene import PLANES, make_sequence
 
 # SLAM at 32x24 on a 64x48 capture: the exports re-read the capture at 64x48.
 TINY = """base: cpu

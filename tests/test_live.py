@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from splat_core.config import load_config
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.pixel_selection import choose_pixels
 from splat_core.render import render
 from splat_core.synthetic import SyntheticSource
@@ -69,7 +69,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
     def viewer():          # novel views of whatever version is newest, as the viewer thread does
         try:
             while not stop.is_set():
-                if live.live_engine is None or live.slam.latest_version() is None:
+                if live.slam.latest_version() is None:
                     continue
                 version = live.map_version()
                 seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))
@@ -104,7 +104,7 @@ def test_live_run_resumes_from_its_checkpoint(tmp_path):
     first = Pipeline(_source(8), config, tmp_path, engine="live")
     for _ in range(6):           # killed after frame 5: the checkpoint holds frames 0-3
         first.step()
-    first.live_engine.close()
+    first.engine.close()
     resumed = _run(Pipeline(_source(8), config, tmp_path, engine="live", resume=True))
     resumed.finish()
     assert len(resumed.slam.w2cs) == 8 and resumed.ate_cm() < 1.0

@@ -13,7 +13,7 @@ from splat_core.config import LostTrackingConfig, load_config
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 from splat_core.keyframes import is_keyframe_time
 from splat_core.metrics import ate_rmse
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.relocalise import Evidence, lost_reason, relative_motion
 from splat_core.slam import SplaTAM
 from splat_core.synthetic import HardCapture, turn_away
@@ -187,10 +187,10 @@ def test_trajectory_comments_precede_their_pose(tmp_path):
 def test_the_viewer_shows_a_lost_track():
     import viser
 
-    from app.assets import DEFAULT_COLORS
+    from app.viewer.assets import DEFAULT_COLORS
     from app.snapshot import MapSnapshot, empty_gaussians
-    from app.viewer_panels import status_markdown
-    from app.viewer_scene import CameraLayer
+    from app.viewer.panels import status_markdown
+    from app.viewer.scene import CameraLayer
 
     c2w = np.stack([np.eye(4)] * 6)
     snap = lambda frame, lost: MapSnapshot(version=1, state="running", frame_index=frame, total_frames=10,  # noqa: E731

@@ -17,7 +17,7 @@ from splat_core.errors import InputError
 from splat_core.io.ply import read_ply, write_ply
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 
-from viewer_helpers import FakePipeline, blob_map, wait_until
+from helpers.viewer import FakePipeline, blob_map, wait_until
 
 
 def test_keyframe_buckets_show_the_map_as_it_was():
@@ -98,14 +98,6 @@ def test_worker_live_render_with_the_real_renderer():
     assert np.isfinite(snap.live.psnr)
 
 
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
-
-
 def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
     from app.viewer import build_viewer
 
@@ -156,7 +148,7 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
 
 def test_consolidation_resends_only_the_chunks_that_changed(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks, no tail
@@ -172,7 +164,7 @@ def test_consolidation_resends_only_the_chunks_that_changed(server):
 
 def test_map_update_policies_hold_back_changes_between_keyframes(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer
+    from app.viewer.scene import MapLayer
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 7], 100)                # two keyframe chunks and a tail
@@ -204,7 +196,7 @@ def test_map_update_policies_hold_back_changes_between_keyframes(server):
 
 def test_the_camera_layer_follows_the_map_update_policy(server):
     """The current camera and trajectory reach the browser when the splats do (any scene message
-    makes viser's page redraw for a while: README "Viewer"), and at once when tracking is lost."""
+    makes viser's page redraw for a while: docs/viewer-notes.md §3), and at once when tracking is lost."""
     from app.snapshot import KeyframeView, MapSnapshot
     from app.viewer import build_viewer
 
@@ -251,7 +243,7 @@ def test_the_camera_layer_follows_the_map_update_policy(server):
 
 def test_browser_budget_thins_the_map_while_slam_runs(server):
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import MapLayer, splat_payload
+    from app.viewer.scene import MapLayer, splat_payload
 
     m = blob_map(300, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5, 10], 100)               # three keyframe chunks of 100
@@ -279,7 +271,7 @@ def test_points_while_running_then_splats(server):
     import viser
 
     from app.snapshot import KeyframeView, MapSnapshot
-    from app.viewer_scene import WORLD_SCALE, MapLayer
+    from app.viewer.scene import WORLD_SCALE, MapLayer
 
     m = blob_map(200, 0).to_numpy()
     m["birth_frame"] = np.repeat([0, 5], 100)                      # two keyframe chunks of 100

@@ -10,22 +10,14 @@ import pytest
 import torch
 
 from app.snapshot import MapSnapshot, freeze_gaussians
-from app.viewer_measure import MeasureTool, pick_point
+from app.viewer.measure import MeasureTool, pick_point
 from app.worker import SlamWorker
 from splat_core.camera import Intrinsics, invert_pose
 from splat_core.gaussians import GaussianMap
 from splat_core.render import Renderer
 from splat_core.synthetic import look_at_c2w
 
-from viewer_helpers import FakePipeline, wait_until
-
-
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
+from helpers.viewer import FakePipeline, wait_until
 
 
 def plane(x_range, y_range, z: float, spacing: float = 0.01) -> np.ndarray:
@@ -132,7 +124,7 @@ def test_export_panel_exports_every_format_while_slam_runs(server, tmp_path):
 @pytest.fixture
 def video_panel(server, tmp_path):
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg not installed (pip install '.[video]')")
-    from app.viewer_video import CameraPathPanel
+    from app.viewer.video_panel import CameraPathPanel
 
     snap = snapshot_of(two_walls())
     return CameraPathPanel(server, lambda: snap, export_dir=tmp_path, render_backend="cpu")

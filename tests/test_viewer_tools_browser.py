@@ -10,9 +10,9 @@ import pytest
 
 from splat_core.camera import Intrinsics, invert_pose, pose_matrix, project, quat_to_rotmat_np
 
-from test_viewer_browser import browser, connect, look, pytestmark, server  # noqa: F401 (fixtures, marks)
+from test_viewer_browser import connect, look, pytestmark  # noqa: F401 (marks)
 from test_viewer_tools import A, B, snapshot_of, two_walls
-from viewer_helpers import wait_until
+from helpers.viewer import wait_until
 
 
 def click_at(page, client, point) -> None:
@@ -48,7 +48,7 @@ def open_folder(page, title: str) -> None:
 def test_measure_video_and_export_in_the_page(browser, server, tmp_path):  # noqa: F811
     from app.video import read_mp4
     from app.viewer import StaticSource, build_viewer
-    from app.viewer_export import LABELS
+    from app.viewer.export_panel import LABELS
     from splat_core.io.map_files import read_map_file
 
     pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg not installed")

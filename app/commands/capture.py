@@ -8,13 +8,12 @@ kept either way (transforms.json is rewritten atomically after every frame).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
-from contextlib import contextmanager
 from pathlib import Path
 
 from splat_core.errors import InputError
+
+from app.run_setup import add_idle_timeout, ctrl_c_ends
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -23,30 +22,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=None, help="stop after N frames (default: Ctrl-C or idle)")
     add_idle_timeout(p)
     p.add_argument("--quiet", action="store_true", help="no progress line")
-
-
-def add_idle_timeout(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--idle-timeout", type=float, default=30.0, metavar="S",
-                   help="nerfcapture://: end after S seconds without a frame (default 30; 0 = never)")
-
-
-@contextmanager
-def ctrl_c_ends(stream, what: str):
-    """The first Ctrl-C ends the stream (the command then finishes normally); a second one aborts."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.getsignal(signal.SIGINT)
-
-    def handler(signum, frame):
-        signal.signal(signal.SIGINT, previous)
-        print(f"\nCtrl-C: ending the stream, {what} (Ctrl-C again to abort)", file=sys.stderr, flush=True)
-        stream.stop()
-    signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def main(args) -> int:

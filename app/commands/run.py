@@ -8,8 +8,7 @@ import sys
 from contextlib import nullcontext
 from pathlib import Path
 
-from app.commands.capture import add_idle_timeout, ctrl_c_ends
-from app.run_setup import add_run_arguments, setup_from_args
+from app.run_setup import add_idle_timeout, add_run_arguments, ctrl_c_ends, setup_from_args
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

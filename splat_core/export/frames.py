@@ -73,7 +73,7 @@ def export_frames(run, indices: list[int], source) -> Iterator[ExportFrame]:
             yield ExportFrame(k, int(run.records[k]["source_index"]), frame_name(run, k), np.array(kf.w2c),
                               np.asarray(kf.color, np.float32), np.asarray(kf.depth, np.float32))
         return
-    from ..pipeline import prepare_frame
+    from ..run.frame_feed import prepare_frame
 
     intr = source.intrinsics
     keyframe_w2c = {kf.frame_index: kf.w2c for kf in run.keyframes}

@@ -1,7 +1,7 @@
 """Which reader opens a capture: detection from the folder's (or archive's) contents.
 
 `open_capture(path)` looks at what is there; `open_capture(path, format="tum")` skips the guess.
-`FORMATS` lists every format with what it needs and how to get one (the README quotes it).
+`FORMATS` lists every format with what it needs and how to get one (docs/formats.md quotes it).
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def detect_format(path) -> str:
         raise InputError(f"{path}: no such file or folder")
     if path.is_file():
         if path.suffix.lower() in (".r3d", ".zip"):
-            from .common import ZipStore
+            from .stores import ZipStore
 
             store = ZipStore(path)  # raises on a damaged archive
             if store.exists("metadata") or store.exists("metadata.json"):

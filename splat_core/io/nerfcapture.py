@@ -1,5 +1,5 @@
 """NeRFCapture (iPhone app streaming over the network), as the capture scripts save it
-(capture_layouts.md section 3), in a folder or a zip of one:
+(docs/formats.md, capture layouts section 3), in a folder or a zip of one:
 
 - SplaTAM's `scripts/nerfcapture2dataset.py`: rgb/<i>.png, depth/<i>.png;
 - instant-ngp's `scripts/nerfcapture2nerf.py`: images/<i>.png, images/<i>.depth.png, with
@@ -26,7 +26,9 @@ import numpy as np
 
 from ..camera import c2w_opengl_to_opencv
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, make_intrinsics, open_store, sort_by_time
+from .camera_files import check_pose, make_intrinsics
+from .common import IndexedCapture, sort_by_time
+from .stores import open_store
 from .images import decode_color, decode_depth_image, raw_depth_to_metres
 
 DEFAULT_METRES_PER_UNIT = 10.0 / 65535.0

@@ -1,7 +1,7 @@
 """ScanNet++ DSLR (undistorted): dslr/nerfstudio/transforms_undistorted.json (PINHOLE fl_x fl_y cx
 cy w h, `frames` and `test_frames`, each with file_path, transform_matrix = 4x4 c2w in OpenGL
 camera axes, is_bad), dslr/undistorted_images/<file_path>, and depth rendered from the mesh as
-uint16 millimetres (0 invalid), from one of two routes (capture_layouts.md section 5):
+uint16 millimetres (0 invalid), from one of two routes (docs/formats.md, capture layouts section 5):
 
 - SplaTAM's fork of the toolkit (Nik-V9/scannetpp): dslr/undistorted_depths/<stem>.png, already
   undistorted like the colour images (read as is);
@@ -24,7 +24,8 @@ import numpy as np
 
 from ..camera import Intrinsics, c2w_opengl_to_opencv
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, make_intrinsics
+from .camera_files import check_pose, make_intrinsics
+from .common import IndexedCapture
 from .images import decode_depth_image, raw_depth_to_metres, read_bytes, read_color, read_depth_png
 
 TRANSFORMS = Path("nerfstudio") / "transforms_undistorted.json"

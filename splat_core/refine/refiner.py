@@ -26,12 +26,13 @@ from ..config import MappingConfig
 from ..gaussians import PARAM_NAMES, GaussianMap
 from ..mapping import View, mapping_loss
 from ..render import Renderer
+from ..slam import MapVersion, snapshot_version
 from .density import DensitySettings, GradientStats, densify_and_prune
 
 
 # Higher than SLAM's mapping rates: a refine has hundreds of steps, not 3DGS's 30k, to move colours
 # and sizes (100 iterations on SUN3D fragment 1 at 640x480: +1.6 dB with these and density control,
-# +0.9 dB with the mapping rates and none; README "Refinement").
+# +0.9 dB with the mapping rates and none; docs/refine.md).
 REFINE_LRS = dict(means=2e-4, colors=1e-2, log_scales=5e-3)
 
 
@@ -102,6 +103,10 @@ class Refiner:
         return self.last_loss
 
     # ------------------------------------------------------------------ state (checkpoints)
+    def publish(self) -> MapVersion:
+        """The map as it stands, as an immutable MapVersion (the type SLAM publishes; numbered by iteration)."""
+        return snapshot_version(self.map, self.iteration, -1)
+
     def state_arrays(self) -> dict:
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         arrays.update(self.stats.to_arrays())

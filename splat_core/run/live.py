@@ -1,0 +1,159 @@
+"""The live engine: the caller's thread tracks every frame while a mapper thread maps.
+
+    engine = LiveEngine(slam, config.live)
+    result = engine.process(frame)      # tracks against the newest map version, hands the frame over
+    engine.drain()                      # wait until everything handed over is mapped (checkpoints, the end)
+    engine.close()
+
+It offers the same interface as the sequential engine (engines.py), so the pipeline never asks
+which one it drives.
+
+The tracker (the thread that calls `process`: the pipeline's, the viewer's worker) tracks each frame
+against the newest `MapVersion` the mapper published and hands (frame, pose) to the mapper. The
+mapper takes everything handed over since its last step, and in one step:
+    densifies from each keyframe among them and from the newest frame (the others add little that
+    the newest does not: they sit between the two),
+    optimises the map over the newest frame's window (current + latest keyframe + overlapping
+    keyframes, SplaTAM's window), prunes, and keeps the keyframes,
+    publishes a new MapVersion (a copy: nothing renders a tensor the mapper is stepping).
+
+Hand-over policy (how far tracking may run ahead): frame 0 is mapped before frame 1 is tracked
+(there is nothing to track against before); after that the tracker waits while the newest
+published version is more than `live.max_lag` frames behind the frame it is about to track.
+So a fast tracker is never more than max_lag frames beyond the map, and on a machine where
+mapping is slower than tracking the mapper covers max_lag + 1 frames per step. Waiting is the
+only coupling: the tracker never blocks on the mapper's work otherwise, and the mapper never
+waits for the tracker.
+
+Cores: under Numba's thread-safe "omp" layer the two threads run their kernels at the same time
+(parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
+stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measured on 2 cores,
+giving each thread half the cores (Numba's threads are per thread) or halving torch's threads
+was slower (docs/engines.md).
+
+Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
+sequential engine (SplaTAM.process) is the deterministic reference.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+from ..config import LiveConfig
+from ..frame import Frame
+from ..slam import FrameResult, MapStats, MapVersion, SplaTAM
+
+
+class LiveEngine:
+    def __init__(self, slam: SplaTAM, config: LiveConfig):
+        self.slam, self.config = slam, config
+        self._cond = threading.Condition()
+        self._pending: deque = deque()      # (t, frame, w2c) handed over, not yet mapped
+        self._handed = -1                   # newest frame index handed over
+        self._mapped = slam.frames_tracked - 1   # newest frame index in a published version (resume: all)
+        self._closing = False
+        self.error: BaseException | None = None
+        self.mapper_steps = 0
+        self.mapper_seconds = 0.0
+        self.wait_seconds = 0.0
+        self.num_added = self.num_pruned = 0
+        slam.publish(self._mapped)          # before the mapper starts: readers always find a version
+        self._thread: threading.Thread | None = None    # started by the first frame
+
+    def _start(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
+            self._thread.start()
+
+    # ------------------------------------------------------------------ the tracker's side
+    def process(self, frame: Frame, w2c_given=None) -> FrameResult:
+        self._start()
+        t = self.slam.frames_tracked
+        waited = self._wait_for_map(t)
+        start = time.perf_counter()
+        version = self.slam.latest_version()
+        t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+        # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
+        # the time reported as mapping is the time this frame waited for the map.
+        result = self.slam.result(frame, t, w2c, tracked, MapStats(), len(version), time.perf_counter() - start,
+                                  waited, map_version=version.number)
+        with self._cond:
+            self._pending.append((t, frame, w2c))
+            self._handed = t
+            self._cond.notify_all()
+        return result
+
+    def map_version(self) -> MapVersion:
+        """The newest version the mapper published (safe to read from any thread)."""
+        return self.slam.latest_version()
+
+    def stats(self) -> dict:
+        return dict(live=dict(max_lag=self.config.max_lag, mapper_steps=self.mapper_steps,
+                              mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
+                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned))
+
+    def _wait_for_map(self, t: int) -> float:
+        """Block while the map is too far behind frame t (the policy above); returns seconds waited."""
+        start = time.perf_counter()
+        need = max(0, t - 1 - self.config.max_lag)
+        with self._cond:
+            while t > 0 and self._mapped < need and self.error is None:
+                self._cond.wait(0.5)
+            self._raise()
+        waited = time.perf_counter() - start
+        self.wait_seconds += waited
+        return waited
+
+    def drain(self) -> None:
+        """Wait until every frame handed over is mapped and published."""
+        with self._cond:
+            while self._mapped < self._handed and self.error is None:
+                self._cond.wait(0.5)
+            self._raise()
+
+    def close(self) -> None:
+        with self._cond:
+            self._closing = True
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join()
+        self._raise()
+
+    def _raise(self) -> None:
+        if self.error is not None:
+            raise RuntimeError(f"the mapper thread failed: {type(self.error).__name__}: {self.error}") from self.error
+
+    # ------------------------------------------------------------------ the mapper thread
+    def _run_mapper(self) -> None:
+        try:
+            while True:
+                with self._cond:
+                    while not self._pending and not self._closing:
+                        self._cond.wait(0.5)
+                    if not self._pending:
+                        return
+                    batch = list(self._pending)
+                    self._pending.clear()
+                self._map(batch)
+        except BaseException as e:       # reported to the tracker at its next call
+            with self._cond:
+                self.error = e
+                self._cond.notify_all()
+
+    def _map(self, batch: list) -> None:
+        start = time.perf_counter()
+        slam = self.slam
+        newest = batch[-1][0]
+        for t, frame, w2c in batch:
+            if t == newest or slam.is_keyframe(t):
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
+                self.num_added += stats.added
+                self.num_pruned += stats.pruned
+        slam.publish(newest)
+        self.mapper_steps += 1
+        self.mapper_seconds += time.perf_counter() - start
+        with self._cond:
+            self._mapped = newest
+            self._cond.notify_all()
