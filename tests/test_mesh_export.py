@@ -84,6 +84,7 @@ def synthetic_run(tmp_path_factory):
     return root / "run", src
 
 
+@pytest.mark.slow
 def test_mesh_of_a_finished_synthetic_run_meets_the_targets(synthetic_run):
     run_dir, src = synthetic_run
     run = load_run_data(run_dir)
@@ -113,6 +114,7 @@ def test_mesh_of_a_finished_synthetic_run_meets_the_targets(synthetic_run):
     assert err < 0.5 * np.median(np.abs(mesh_rgb[:, ::-1] - seen_rgb))        # BGR would fail
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("suffix", [".ply", ".obj", ".glb"])
 def test_cli_writes_a_mesh_trimesh_reads(synthetic_run, tmp_path, capsys, suffix):
     run_dir, _ = synthetic_run
@@ -127,6 +129,7 @@ def test_cli_writes_a_mesh_trimesh_reads(synthetic_run, tmp_path, capsys, suffix
     assert [p.name for p in tmp_path.iterdir()] == [out.name]            # nothing temporary left
 
 
+@pytest.mark.slow
 def test_rendered_depth_mesh_and_bad_options(synthetic_run, tmp_path, capsys):
     run_dir, _ = synthetic_run
     mesh = build_mesh(load_run_data(run_dir), voxel=0.02, depth="rendered")

@@ -35,6 +35,7 @@ def run_dir(tmp_path_factory):
     return root / "run"
 
 
+@pytest.mark.slow
 def test_mesh_layer_and_mesh_export_in_the_page(browser, server, run_dir, tmp_path):  # noqa: F811
     from app.browse import load_run
     from app.viewer import StaticSource, build_viewer
