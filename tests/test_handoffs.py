@@ -196,6 +196,7 @@ def test_cli_exports_and_refuses_bad_input(finished_run, tmp_path, capsys):
     capsys.readouterr()
     for argv in (["--format", "colmap", "--out", str(tmp_path / "other")],
                  ["--format", "colmap", "--out", str(tmp_path / "c"), "--frames", "zero"],
+                 ["--format", "nerfstudio", "--out", str(tmp_path / "c"), "--max-points", "0"],
                  ["--format", "mesh", "--out", str(tmp_path / "m.stl")]):
         assert splatam_main(["export", str(finished_run), "--quiet", *argv]) == 2
         err = capsys.readouterr().err.strip()

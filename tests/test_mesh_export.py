@@ -134,7 +134,7 @@ def test_rendered_depth_mesh_and_bad_options(synthetic_run, tmp_path, capsys):
     run_dir, _ = synthetic_run
     mesh = build_mesh(load_run_data(run_dir), voxel=0.02, depth="rendered")
     assert len(mesh.faces) > 1000 and mesh.metadata["depth"] == "rendered"
-    for argv in (["--voxel", "0.02", "--trunc", "0.01"], ["--voxel", "-1"]):
+    for argv in (["--voxel", "0.02", "--trunc", "0.01"], ["--voxel", "-1"], ["--voxel", "0.0001"]):
         assert splatam_main(["export", str(run_dir), "--format", "mesh", "--out", str(tmp_path / "m.ply"),
                              "--quiet", *argv]) == 2
         err = capsys.readouterr().err.strip()

@@ -30,6 +30,7 @@ MIN_COMPONENT_FACES = 200      # smaller disconnected pieces are removed
 RENDER_MIN_ALPHA = 0.9
 MAX_STEP_VOXELS = 3.0 * np.sqrt(3.0)   # largest TSDF change across a meshed cube, in voxels (benchmarks/mesh.py)
 DEPTH_MODES = ("captured", "rendered")
+MIN_VOXEL = 0.001              # metres; finer would allocate blocks by the million
 MESH_SUFFIXES = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
 
 
@@ -181,8 +182,8 @@ def build_mesh(run, voxel: float | None = None, trunc: float | None = None, dept
         voxel = default_voxel(kf.depth for kf in run.keyframes)
     if trunc is None:
         trunc = default_trunc(voxel)
-    if not (voxel > 0 and trunc >= voxel):
-        raise InputError(f"--voxel {voxel} / --trunc {trunc}: need voxel > 0 and trunc >= voxel")
+    if not (voxel >= MIN_VOXEL and trunc >= voxel):
+        raise InputError(f"--voxel {voxel} / --trunc {trunc}: need voxel >= {MIN_VOXEL} m and trunc >= voxel")
     volume = fuse_views(keyframe_views(run, depth), run.intrinsics, voxel, trunc, progress, len(run.keyframes))
     mesh = extract_mesh(volume, min_component_faces, progress)
     mesh.metadata.update(voxel=voxel, trunc=trunc, depth=depth, volume_bytes=volume.nbytes, blocks=volume.n)

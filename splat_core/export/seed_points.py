@@ -31,6 +31,8 @@ class Seeds:
 
 def seed_points(arrays: dict, max_points: int = MAX_POINTS, min_opacity: float = MIN_OPACITY) -> Seeds:
     """Opaque Gaussians (opacity >= min_opacity), one per grid cell, at most max_points."""
+    if max_points < 1:
+        raise InputError(f"--max-points {max_points}: expected a positive number of seed points")
     means = np.asarray(arrays["means"], np.float64)
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(arrays["logit_opacities"], np.float64).reshape(-1)))
     keep = np.flatnonzero((opacity >= min_opacity) & np.isfinite(means).all(1))
