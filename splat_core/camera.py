@@ -112,7 +112,8 @@ def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def w2c_from_quat_trans(q: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Differentiable 4x4 world-to-camera matrix from a quaternion (4,) and a translation (3,)."""
     top = torch.cat([quat_to_rotmat(q), t.reshape(3, 1)], dim=1)
-    bottom = torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=top.dtype, device=top.device)
+    bottom = torch.zeros(1, 4, dtype=top.dtype, device=top.device)
+    bottom[0, 3] = 1.0                  # a fill on the device: no host-to-device copy per call
     return torch.cat([top, bottom], dim=0)
 
 

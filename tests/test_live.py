@@ -61,8 +61,8 @@ def test_gradient_rule_takes_the_strongest_edge_of_a_block():
 
 @pytest.mark.slow
 def test_live_engine_tracks_while_other_threads_render_its_map():
-    sequential = _run(Pipeline(_source(), _config(pixels="random", align_stride=2)))
-    live = Pipeline(_source(), _config(pixels="random", align_stride=2), engine="live")
+    sequential = _run(Pipeline(_source(), _config(pixels="random", align={"stride": 2})))
+    live = Pipeline(_source(), _config(pixels="random", align={"stride": 2}), engine="live")
     seen, errors, stop = {}, [], threading.Event()
     intr = live.intrinsics.scaled(80, 60)
 
