@@ -32,6 +32,7 @@ from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from .novel_view import MODES, NovelView, RenderService
 from ..snapshot import MapSnapshot
 from .export_panel import ExportPanel
+from .mesh_layer import MeshLayer
 from .measure import MeasureTool
 from .panels import Panels
 from .refine_panel import RefinePanel
@@ -74,6 +75,7 @@ class ViewerApp:
         server.initial_camera.look_at = (0.0, 0.0, 1.5)
         server.initial_camera.up = (0.0, -1.0, 0.0)
 
+        self.mesh_layer = MeshLayer(server, lambda: self.source.latest())   # owns /map: before any chunk
         self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats,
                                   draw_while_running)
         self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
@@ -81,7 +83,8 @@ class ViewerApp:
                              draw_while_running)
         self.refine_panel = RefinePanel(server, source, self.wake)
         self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
-        self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder)
+        self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder,
+                                        mesh=self.mesh_layer)
         self.video_panel = CameraPathPanel(server, self.source.latest, export_dir=self.export_dir,
                                            render_backend=render_backend)
         self.measure = MeasureTool(server, self.source.latest, render_backend)
@@ -210,6 +213,7 @@ class ViewerApp:
         if snap.live is not None and (prev is None or prev.live is not snap.live):
             p.update_live(snap)
         self._update_keyframe_slider(snap)
+        self.mesh_layer.sync(snap)
         self.updates += 1
         self.applied = snap      # fully pushed to viser (tests and the benchmark wait on this)
         return True

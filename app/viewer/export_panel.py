@@ -22,26 +22,33 @@ from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
-          "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page"}
+          "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page",
+          "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
 
 
 class ExportPanel:
-    def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, folder=None):
+    def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, folder=None,
+                 mesh=None):
         self.source = source                # latest() -> MapSnapshot | None
+        self.mesh = mesh                    # a MeshLayer: offers the "mesh" entry
         self.export_dir = Path(export_dir) / "exports" if export_dir else None
         self._busy = threading.Lock()
         self.exports = 0
         gui = server.gui
         with folder if folder is not None else gui.add_folder("Export"):   # the panel's Export folder
-            self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in FORMATS),
+            self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in self.formats),
                                            initial_value=LABELS[FORMATS[0]])
             self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD)
             self.info = gui.add_markdown("Exports the map as it is now; SLAM keeps running.")
         self.button.on_click(self._on_click)
 
     @property
+    def formats(self) -> tuple:
+        return FORMATS + (("mesh",) if self.mesh is not None else ())
+
+    @property
     def selected_format(self) -> str:
-        return next(f for f in FORMATS if LABELS[f] == self.format.value)
+        return next(f for f in self.formats if LABELS[f] == self.format.value)
 
     def _on_click(self, event) -> None:
         threading.Thread(target=self._export_and_send, args=(event.client, self.selected_format),
@@ -59,6 +66,17 @@ class ExportPanel:
             raise InputError("there is no map to export yet")
         if not self._busy.acquire(blocking=False):
             return None
+        if fmt == "mesh":
+            try:
+                self.button.disabled = True
+                self.info.content = "Building the mesh…"
+                path = self.mesh.export(self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-")))
+                self.exports += 1
+                self.info.content = f"{path.name}: {path.stat().st_size:,} bytes, written to `{path}`"
+                return path
+            finally:
+                self.button.disabled = False
+                self._busy.release()
         try:
             self.button.disabled = True
             self.info.content = f"Exporting {snap.num_gaussians:,} Gaussians as {LABELS[fmt]}…"
