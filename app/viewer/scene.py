@@ -142,6 +142,11 @@ class MapLayer:
     def node_names(self) -> list[str]:
         return list(self._nodes)
 
+    def chunk_names(self) -> list[str]:
+        """Every chunk's node name in keyframe order, the tail last (scrub.py shadows those after a keyframe)."""
+        with self._lock:
+            return list(self._order)
+
     def update(self, snap: MapSnapshot, force_consolidate: bool = False) -> bool:
         """Bring the chunks up to date with `snap`; returns True if anything was sent."""
         with self._lock:
