@@ -39,14 +39,35 @@ def _run(module_name: str, args: argparse.Namespace) -> int:
         return 130
 
 
+def parse_or_suggest(parser: argparse.ArgumentParser, argv, subparsers: dict | None = None):
+    """parse_args, but an unknown option is reported by the subcommand's own parser (its usage) with the
+    closest option it has ("did you mean --max-frames?")."""
+    import difflib
+
+    args, extra = parser.parse_known_args(argv)
+    if not extra:
+        return args
+    target = (subparsers or {}).get(getattr(args, "command", None), parser)
+    options = [o for action in target._actions for o in action.option_strings]
+    hints = []
+    for word in extra:
+        if word.startswith("-"):
+            close = difflib.get_close_matches(word.split("=")[0], options, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{word}: did you mean {close[0]}?")
+    target.error(f"unrecognized arguments: {' '.join(extra)}" + (f" ({'; '.join(hints)})" if hints else ""))
+
+
 def splatam_main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="splatam", description="SplaTAM: RGB-D SLAM with 3D Gaussians")
     sub = parser.add_subparsers(dest="command", required=True)
+    subparsers = {}
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         importlib.import_module(module_name).add_arguments(p)
         p.set_defaults(_module=module_name)
-    args = parser.parse_args(argv)
+        subparsers[name] = p
+    args = parse_or_suggest(parser, argv, subparsers)
     return _run(args._module, args)
 
 
@@ -55,7 +76,7 @@ def viewer_main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="splatam-viewer",
                                      description="Live SplaTAM SLAM in the browser (viser)")
     importlib.import_module(module_name).add_arguments(parser)
-    return _run(module_name, parser.parse_args(argv))
+    return _run(module_name, parse_or_suggest(parser, argv))
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -63,7 +63,8 @@ class ViewerApp:
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
-                 draw_while_running: str = "splats", access: Access | None = None):
+                 draw_while_running: str = "splats", access: Access | None = None,
+                 first_note: str | None = None, preview_frame=None):
         self.server = server
         self.feed = SnapshotFeed(source)
         self.source = self.feed                  # what every part of the viewer reads
@@ -92,6 +93,9 @@ class ViewerApp:
         self.scrubber.camera_layer = self.camera_layer
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
                              draw_while_running, controls=self.control_gui)
+        self.panels.first_note = first_note
+        if preview_frame is not None:
+            self.panels.show_preview(preview_frame.color, preview_frame.depth, preview_frame.index)
         self.export_panel = ExportPanel(server, self.feed, export_dir=self.export_dir, gui=self.control_gui)
         self.refine_panel = RefinePanel(server, self.feed, gui=self.control_gui)
         self.feed.on_refined(self.wake)
