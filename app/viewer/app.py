@@ -31,7 +31,7 @@ from splat_core.camera import Intrinsics
 from splat_core.gaussians import Gaussians
 
 from ..snapshot import MapSnapshot
-from .access import Access
+from .access import Access, tolerate_malformed_messages
 from .assets import WebAssets, apply_theme, load_assets
 from .control_gui import ControlGui
 from .export_panel import ExportPanel
@@ -66,6 +66,7 @@ class ViewerApp:
                  draw_while_running: str = "splats", access: Access | None = None,
                  first_note: str | None = None, preview_frame=None):
         self.server = server
+        tolerate_malformed_messages()            # a bad websocket message is dropped, the page stays
         self.feed = SnapshotFeed(source)
         self.source = self.feed                  # what every part of the viewer reads
         self.controls = controls_of(source)      # pause / resume / step_once, or None when browsing
