@@ -20,7 +20,12 @@ COMPILING_NOTE = "compiling the CPU renderer: first run only (about a minute; `m
 
 
 def kernels_compiled() -> bool:
-    """Whether Numba's cache holds the renderer's forward kernel (index files beside the module)."""
+    """Whether Numba's cache holds the renderer's forward kernel (index files beside the module, or
+    under NUMBA_CACHE_DIR when that is set)."""
+    import os
+
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        return any(Path(os.environ["NUMBA_CACHE_DIR"]).rglob("cpu._forward_kernel-*.nbi"))
     cache = Path(splat_core.__file__).parent / "render" / "__pycache__"
     return any(cache.glob("cpu._forward_kernel-*.nbi"))
 

@@ -82,6 +82,12 @@ def open_page(browser, url, server=None):  # noqa: F811
     return page, client
 
 
+def hide_lines(client):
+    """Count map colours only: the green reference trajectory and the current camera hidden for `client`."""
+    for name in ("/trajectory", "/camera"):
+        client.scene.add_frame(name, show_axes=False, visible=False)
+
+
 def url_of(server):
     return f"http://127.0.0.1:{server.get_port()}/"
 
@@ -99,7 +105,7 @@ def poll_render(client, predicate, what, timeout=60):
     last = {}
 
     def attempt():
-        last["img"] = render(client)
+        last["img"] = render(client, 60, 80)      # small: software WebGL renders take seconds
         return predicate(last["img"])
     try:
         return wait_until(attempt, timeout, interval=0.3, what=what) and last["img"]
@@ -143,7 +149,7 @@ def test_keyframe_view_shows_the_map_and_stays_in_sync(browser, served):  # noqa
         assert box.input_value() == "1" and not page.get_by_label("Follow latest").is_checked()
         # at the keyframe's pose (the first camera) the map shows, not the grey keyframe image planes
         wait_until(lambda: np.allclose(client.camera.position, 0.0, atol=1e-3), 20, what="camera at keyframe 1")
-        img = poll_render(client, lambda im: red(im) > 500 and green(im) == 0, "map at keyframe 1")
+        img = poll_render(client, lambda im: red(im) > 80 and green(im) == 0, "map at keyframe 1")
         assert grey(img) < 0.05 * img.shape[0] * img.shape[1], grey(img)
         # a frustum click moves the Keyframes panel too
         scrub_frames = [kf.frame_index for kf in app.applied.keyframes]
@@ -162,15 +168,17 @@ def test_a_new_page_follows_the_latest_map(browser, served):  # noqa: F811
     try:
         wait_until(lambda: client_a.client_id in app.scrubber.pages, 10, what="the page's scrubber")
         app.scrubber.go_to(client_a.client_id, 0)
+        hide_lines(client_a)
         look(client_a, (0.5, 0.0, 0.8), (0.5, 0.0, 2.0))
-        poll_render(client_a, lambda im: red(im) > 100 and green(im) == 0, "first page at keyframe 1")
+        poll_render(client_a, lambda im: red(im) > 20 and green(im) == 0, "first page at keyframe 1")
         second, client_b = open_page(browser, url_of(server), server)
         try:
             wait_until(lambda: second.get_by_label("Follow latest").is_checked(), 20, what="follow ticked")
             assert slider_box(second).input_value() == "3"
+            hide_lines(client_b)
             look(client_b, (0.5, 0.0, 0.8), (0.5, 0.0, 2.0))
-            poll_render(client_b, lambda im: red(im) > 100 and green(im) > 100, "second page: the whole map")
-            poll_render(client_a, lambda im: green(im) == 0, "first page still at keyframe 1")
+            poll_render(client_b, lambda im: red(im) > 20 and green(im) > 20, "second page: the whole map")
+            poll_render(client_a, lambda im: green(im) < 5, "first page still at keyframe 1")
         finally:
             second.close()
     finally:
