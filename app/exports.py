@@ -9,6 +9,7 @@ written atomically (temporary name, then rename).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 from splat_core.errors import InputError
@@ -33,7 +34,7 @@ def resolve_format(fmt: str | None, out_path) -> str:
 def load_arrays(map_arrays_or_path) -> dict:
     """Gaussian arrays from a dict (GaussianMap.to_numpy() layout), a GaussianMap, a run folder or
     a map file."""
-    if isinstance(map_arrays_or_path, dict):
+    if isinstance(map_arrays_or_path, Mapping):
         return map_arrays_or_path
     if hasattr(map_arrays_or_path, "to_numpy"):
         return map_arrays_or_path.to_numpy()

@@ -86,7 +86,7 @@ def input_format(input_path, format: str | None) -> str:
 
 
 def config_summary(config) -> str:
-    from splat_core.resolution import describe_resolution
+    from splat_core.run.resolution import describe_resolution
 
     return (f"{config.name}: track {config.tracking.iterations} it, map {config.mapping.iterations} it, "
             f"window {config.mapping.window_size}, resolution {describe_resolution(config.resolution)}")
@@ -97,7 +97,7 @@ def load_run_config(spec: str | None, format_name: str, device, resolution: str 
     """The budget (`spec`, or the device's default) over `format_name`'s layer, then the CLI's
     --resolution and --min-confidence."""
     from splat_core.config import load_config
-    from splat_core.resolution import parse_resolution
+    from splat_core.run.resolution import parse_resolution
 
     overrides = {}
     if resolution is not None:
@@ -129,7 +129,7 @@ class RunSetup:
 
     def start(self):
         """The Pipeline (for a live stream this waits for the first frame)."""
-        from splat_core.pipeline import Pipeline
+        from splat_core.run import Pipeline
 
         self.pipeline = Pipeline(self.source, self.config, self.out, device=self.device, max_frames=self.max_frames,
                                  stride=self.stride, resume=self.resume, engine=self.engine)
@@ -138,7 +138,7 @@ class RunSetup:
     def lines(self) -> list[str]:
         """What the commands print before the run: the input, the settings layers, the run."""
         from splat_core.config import describe_layers
-        from splat_core.resolution import source_sizes
+        from splat_core.run.resolution import source_sizes
 
         pipe = self.pipeline
         (cw, ch), (dw, dh) = source_sizes(self.source)
@@ -155,16 +155,17 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
               idle_timeout: float | None = None) -> RunSetup:
     """Settings and input of a run (`input_path` None or "synthetic": the synthetic scene; nerfcapture://: the
     live stream, recorded to OUT/capture and ended after `idle_timeout` seconds without a frame)."""
-    from splat_core.pipeline import open_input, resolve_device
+    from splat_core.run import open_input, resolve_device
 
     if out is not None:
         out = Path(out)
         if out.exists() and not out.is_dir():
             raise InputError(f"{out}: --out must be a folder")
-        from splat_core.io import checkpoint
+        from splat_core.run.run_folder import RunFolder
         # a folder with a checkpoint or a finished run's metrics is taken; one killed before its
         # first checkpoint (only checkpoint/keyframes.bin) holds nothing worth keeping
-        if not resume and (checkpoint.exists(out / "checkpoint") or (out / "metrics.json").is_file()):
+        folder = RunFolder(out)
+        if not resume and (folder.has_checkpoint() or folder.is_finished()):
             raise InputError(f"{out}: already holds a run; choose another --out (or continue it: splatam run --resume)")
     if input_path == "synthetic":
         input_path = None

@@ -1,19 +1,28 @@
-"""MapSnapshot: what the SLAM worker publishes and the viewer draws (DESIGN.md §2).
+"""MapSnapshot: what the SLAM worker publishes and the viewer draws (docs/design.md, data flow).
 
-A snapshot is immutable once published: numpy copies of the map, the keyframes, both
-trajectories and the recent metrics. Only the latest one is kept; the viewer pulls it at its own
-pace, so a slow browser never slows tracking down. Arrays are marked read-only so an accidental
-write fails loudly instead of racing with the worker.
+A snapshot is immutable once published: the map, the keyframes, both trajectories and the recent
+metrics. Only the latest one is kept; the viewer pulls it at its own pace, so a slow browser never
+slows tracking down. Arrays are marked read-only so an accidental write fails loudly instead of
+racing with the worker.
+
+The map crosses from SLAM to the viewer once: a snapshot carries the engine's published
+`MapVersion` (immutable tensors) wrapped as `VersionArrays`; numpy arrays of it are made on the
+first read, on the reader's thread, and kept by the version. A map read from a file (browse
+mode) or refined in the viewer is a `FrozenArrays`. Both offer the arrays as a read-only mapping
+and `tensors()` for the renderer, made once.
 """
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from splat_core.camera import Intrinsics
+from splat_core.gaussians import Gaussians
 
 # Worker / viewer states shown in the status panel.
 STATES = ("starting", "running", "paused", "finished", "stopped", "error", "browse")
@@ -78,7 +87,7 @@ class MapSnapshot:
     frame_index: int                       # last processed frame (-1 before the first)
     total_frames: int
     map_version: int                       # changes only when `gaussians` changed
-    gaussians: dict                        # raw arrays as GaussianMap.to_numpy() (read-only)
+    gaussians: "MapArrays"                 # raw arrays as GaussianMap.to_numpy() (read-only)
     keyframes: tuple = ()                  # KeyframeView, in insertion order
     intrinsics: Intrinsics | None = None   # working resolution
     near_plane: float = 0.01               # the run's config.near_plane: every render of this map uses it
@@ -112,19 +121,68 @@ class MapSnapshot:
         return self.frame_index + 1
 
 
+class MapArrays(Mapping):
+    """A map's arrays (GaussianMap.to_numpy() layout, read-only) and its renderer tensors."""
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._arrays()[name]
+
+    def __iter__(self):
+        return iter(self._arrays())
+
+    def __len__(self) -> int:
+        return len(self._arrays())
+
+    def _arrays(self) -> dict:
+        raise NotImplementedError
+
+    def tensors(self) -> Gaussians:
+        raise NotImplementedError
+
+
+class VersionArrays(MapArrays):
+    """A MapVersion published by the engine: its tensors as they are, its arrays made on first read."""
+
+    def __init__(self, version):
+        self.version = version
+
+    def _arrays(self) -> dict:
+        return self.version.arrays
+
+    def tensors(self) -> Gaussians:
+        return self.version.gaussians
+
+
+class FrozenArrays(MapArrays):
+    """Read-only copies of map arrays (a file, a refined map); tensors made on first use."""
+
+    def __init__(self, arrays: dict):
+        n = len(arrays["means"])
+        self._frozen = {k: frozen(v) for k, v in arrays.items()}
+        if self._frozen.get("birth_frame") is None:
+            self._frozen["birth_frame"] = frozen(np.zeros(n, np.int64))
+        self._tensors: Gaussians | None = None
+        self._lock = threading.Lock()
+
+    def _arrays(self) -> dict:
+        return self._frozen
+
+    def tensors(self) -> Gaussians:
+        with self._lock:
+            if self._tensors is None:
+                self._tensors = Gaussians.from_arrays(self._frozen)
+            return self._tensors
+
+
 def empty_gaussians() -> dict:
     return dict(means=np.zeros((0, 3), np.float32), colors=np.zeros((0, 3), np.float32),
                 rotations=np.zeros((0, 4), np.float32), logit_opacities=np.zeros(0, np.float32),
                 log_scales=np.zeros((0, 1), np.float32), birth_frame=np.zeros(0, np.int64))
 
 
-def freeze_gaussians(arrays: dict) -> dict:
+def freeze_gaussians(arrays: dict) -> FrozenArrays:
     """Read-only copies of the Gaussian arrays (birth_frame added as zeros when absent)."""
-    n = len(arrays["means"])
-    out = {k: frozen(v) for k, v in arrays.items()}
-    if out.get("birth_frame") is None:
-        out["birth_frame"] = frozen(np.zeros(n, np.int64))
-    return out
+    return FrozenArrays(arrays)
 
 
 def make_thumbnail(color: np.ndarray, height: int = 100) -> np.ndarray:

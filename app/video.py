@@ -35,15 +35,17 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def gaussians_of(arrays: dict, device="cpu"):
-    """Renderer input (float32 tensors) from map arrays (GaussianMap.to_numpy() layout)."""
+def gaussians_of(arrays, device="cpu"):
+    """Renderer input from map arrays: a snapshot's (made once, kept by the snapshot's map) or any
+    dict in the GaussianMap.to_numpy() layout."""
     import torch
 
     from splat_core.gaussians import Gaussians
 
-    t = lambda a: torch.as_tensor(np.array(a, np.float32), device=device)  # noqa: E731 (a copy: snapshots are read-only)
-    return Gaussians(t(arrays["means"]), t(arrays["colors"]), t(arrays["rotations"]),
-                     t(arrays["logit_opacities"]), t(arrays["log_scales"]))
+    if not hasattr(arrays, "tensors"):
+        return Gaussians.from_arrays(arrays, device=device)
+    g = arrays.tensors()
+    return g if g.means.device == torch.device(device) else Gaussians(*(t.to(device) for t in g.fields()))
 
 
 def render_frames(arrays: dict, intrinsics, c2ws, *, mode: str = "color", near: float = 0.01,

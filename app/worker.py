@@ -18,8 +18,8 @@ import numpy as np
 
 from splat_core.metrics import psnr
 
-from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, empty_gaussians, freeze_gaussians,
-                       frozen, make_thumbnail)
+from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, VersionArrays, empty_gaussians,
+                       freeze_gaussians, frozen, make_thumbnail)
 
 log = logging.getLogger(__name__)
 
@@ -214,7 +214,7 @@ class SlamWorker(threading.Thread):
         pipe = self.pipeline
         now = time.monotonic()
         if force_map or now - self._map_copied_at >= self.map_interval_s:
-            self._map_arrays = freeze_gaussians(pipe.map_version().to_numpy())
+            self._map_arrays = VersionArrays(pipe.map_version())   # no copy: versions are immutable
             self._map_version += 1
             self._map_copied_at = now
         est = pipe.estimated_c2w() if self._last_frame_index >= 0 else []

@@ -44,6 +44,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import machine  # noqa: E402
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = ROOT.parent / "shared" / "data"
 DEFAULT_SEQUENCES = ["7scenes_redkitchen_300", "sun3d_3dmatch_fragment1", "sun3d_3dmatch_fragment2"]
@@ -61,19 +64,6 @@ def import_open3d():
             "(On Debian/Ubuntu a missing libusb-1.0.so.0 is fixed by: apt-get install libusb-1.0-0)"
         )
     return o3d
-
-
-def machine() -> dict:
-    cpu = platform.processor() or ""
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    return {"cpu": cpu, "cores": cores, "python": platform.python_version(), "system": platform.system()}
 
 
 def load_frames(path: Path, max_frames: int | None):

@@ -7,7 +7,7 @@ keeps exploring; prints JSON (one object per run).
     python benchmarks/long_run.py time --frames 1000 --size 320x240 --preset cpu
     python benchmarks/long_run.py time --frames 1000 --size 160x120 --given-poses   # mapping's cost alone
 
-memory: the synthetic room (synthetic.py) at twice the hand-held speed, so the camera orbits the
+memory: the synthetic room (splat_core/synthetic/) at twice the hand-held speed, so the camera orbits the
 room more than once, with the reference poses given (tracking.use_reference_poses) and short
 mapping (1 iteration a frame), as the issue that asked for it measured. RSS is read from
 /proc/self/status after every frame; the least-squares slope of RSS over frames 100..N is
@@ -78,7 +78,7 @@ def first_orbit(c2w) -> int:
 
 def child_memory(args) -> dict:
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     from splat_core.synthetic import SyntheticSource
 
     w, h = args.size
@@ -118,8 +118,8 @@ def child_memory(args) -> dict:
 
 def child_time(args) -> dict:
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
-    from splat_core.synthetic_corridor import CorridorSource
+    from splat_core.run import Pipeline
+    from splat_core.synthetic import CorridorSource
 
     w, h = args.size
     overrides = {"resolution": [w, h], "eval_every": 10**9}

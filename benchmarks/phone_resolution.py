@@ -3,7 +3,7 @@
     python benchmarks/phone_resolution.py --frames 20 --json
     python benchmarks/phone_resolution.py --sizes 256x192,320x240,512x384 --preset cpu
 
-A synthetic phone-shaped capture (splat_core/synthetic_phone.py: colour 1024x768, depth 256x192,
+A synthetic phone-shaped capture (splat_core/synthetic/phone.py: colour 1024x768, depth 256x192,
 4x smaller, exact poses) is mapped by the same Pipeline at each working size in turn, in one
 process, sequential engine (--repeats R: R rounds, interleaved). For each size: ATE, the median wall seconds per frame (frame 0, the
 long first mapping, left out) and the map's PSNR rendered at one common size (--eval-size, the
@@ -28,9 +28,9 @@ import torch  # noqa: E402
 from benchmarks.slam import machine  # noqa: E402
 from splat_core import metrics as M  # noqa: E402
 from splat_core.config import load_config  # noqa: E402
-from splat_core.pipeline import Pipeline  # noqa: E402
-from splat_core.resolution import parse_resolution  # noqa: E402
-from splat_core.synthetic_phone import SyntheticPhoneCapture  # noqa: E402
+from splat_core.run import Pipeline  # noqa: E402
+from splat_core.run.resolution import parse_resolution  # noqa: E402
+from splat_core.synthetic import SyntheticPhoneCapture  # noqa: E402
 
 
 def map_psnr(pipe: Pipeline, source, size) -> float:

@@ -32,10 +32,13 @@ import resource  # noqa: E402
 import statistics  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import machine  # noqa: E402
 from splat_core.camera import Intrinsics, w2c_from_quat_trans  # noqa: E402
 from splat_core.gaussians import Gaussians  # noqa: E402
 from splat_core.render import render, resolve_backend  # noqa: E402
@@ -85,30 +88,6 @@ def room_gaussians(intr: Intrinsics, n: int, seed: int = 0, dtype=torch.float32)
     rot[:, 0] = 1
     return Gaussians(means=t(pts), colors=t(rng.uniform(0, 1, (n, 3))), rotations=t(rot),
                      logit_opacities=t(np.zeros(n)), log_scales=t(np.log(radius)[:, None]))
-
-
-def machine() -> dict:
-    cpu = platform.processor() or "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    info = {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
-            "torch_threads": torch.get_num_threads(), "python": platform.python_version(),
-            "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY")}
-    try:
-        import numba
-        info["numba"] = numba.__version__
-        info["numba_threads"] = numba.config.NUMBA_NUM_THREADS
-    except ImportError:
-        pass
-    if torch.cuda.is_available():
-        info["gpu"] = torch.cuda.get_device_name(0)
-    return info
 
 
 def _sync(device):

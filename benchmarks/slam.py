@@ -38,21 +38,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data"
-REAL = ["7scenes_redkitchen_300", "sun3d_3dmatch_fragment1", "sun3d_3dmatch_fragment2"]
-
-
-def machine() -> str:
-    model = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                model = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{model}, {os.cpu_count()} cores"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import DATA, REAL, ROOT, machine_line as machine  # noqa: E402
 
 
 def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str,

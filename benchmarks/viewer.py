@@ -36,13 +36,13 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))   # the browser tests' Chromium flags
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
 from app.viewer.scene import MapLayer  # noqa: E402
 from splat_core.gaussians import GaussianMap  # noqa: E402
 
-CHROMIUM = "/usr/bin/chromium"
+from common import CHROMIUM, CHROMIUM_ARGS, changed_pixels  # noqa: E402
 
 
 def synthetic_map(n: int, keyframes: int, seed: int = 0) -> GaussianMap:
@@ -106,10 +106,9 @@ def server_side(n: int) -> dict:
 def chromium_page(server, init_script: str | None = None):
     """Headless Chromium (software WebGL, the browser tests' flags) on the server's page, connected."""
     from playwright.sync_api import sync_playwright
-    from test_viewer_browser import ARGS
 
     pw = sync_playwright().start()
-    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+    browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
     try:
         page = browser.new_page(viewport={"width": 800, "height": 600})
         if init_script:
@@ -124,7 +123,6 @@ def chromium_page(server, init_script: str | None = None):
 
 def client_side(n: int, timeout: float) -> dict:
     import viser
-    from test_viewer_browser import changed_pixels
 
     from app.viewer import StaticSource, build_viewer
 
@@ -207,7 +205,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     from app.viewer import build_viewer
     from app.worker import SlamWorker
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline, open_input
+    from splat_core.run import Pipeline, open_input
 
     def pipeline():
         return Pipeline(open_input(None), load_config(config), None, max_frames=frames, engine=engine)

@@ -25,29 +25,18 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
 
-
-def machine() -> dict:
-    model = ""
-    try:
-        model = next(line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": model or platform.processor(), "cores": os.cpu_count(), "python": platform.python_version(),
-            "date": datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+from common import CHROMIUM, CHROMIUM_ARGS, machine  # noqa: E402 (benchmarks/common.py)
 
 
 def rss_mb() -> float:
@@ -123,7 +112,7 @@ def viewer_run(frames: int, *, readers: int, stall_seconds: float = 0.0, config:
     from app.viewer import build_viewer
     from app.worker import SlamWorker
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline, open_input
+    from splat_core.run import Pipeline, open_input
 
     n = frames if not stall_seconds else 10_000
     pipe = Pipeline(open_input(None, n_frames=max(n, 60) if stall_seconds else None), load_config(config), None,
@@ -176,8 +165,6 @@ def first_page(timeout: float) -> dict:
 
     from playwright.sync_api import sync_playwright
 
-    from test_viewer_browser import ARGS, CHROMIUM
-
     with tempfile.TemporaryDirectory(prefix="splatam-fresh-") as tmp:
         env = dict(os.environ, NUMBA_CACHE_DIR=tmp, PYTHONPATH=str(ROOT), PYTHONUNBUFFERED="1")
         cmd = [sys.executable, "-c", "import sys; from app.cli import viewer_main; sys.exit(viewer_main())",
@@ -202,7 +189,7 @@ def first_page(timeout: float) -> dict:
                     time.sleep(0.05)
             answered = time.monotonic()
             with sync_playwright() as pw:
-                browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
+                browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
                 page = browser.new_page(viewport={"width": 1000, "height": 800})
                 page.goto(url)
                 page.wait_for_function("() => document.body.innerText.includes('Frame #0')"

@@ -77,6 +77,11 @@ class Intrinsics:
     def to_dict(self) -> dict:
         return dict(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
 
+    @classmethod
+    def from_dict(cls, d: dict) -> "Intrinsics":
+        """The inverse of to_dict (extra keys ignored); KeyError / TypeError when one is missing."""
+        return cls(**{k: d[k] for k in ("fx", "fy", "cx", "cy", "width", "height")})
+
 
 # ----------------------------------------------------------------------------- quaternions (torch)
 

@@ -37,6 +37,23 @@ class Gaussians:
     def isotropic(self) -> bool:
         return self.log_scales.shape[-1] == 1
 
+    def fields(self) -> tuple[torch.Tensor, ...]:
+        return tuple(getattr(self, n) for n in PARAM_NAMES)
+
+    def select(self, keep: torch.Tensor) -> "Gaussians":
+        """The Gaussians where `keep` (a bool mask or indices) selects."""
+        return Gaussians(*(t[keep] for t in self.fields()))
+
+    @classmethod
+    def from_arrays(cls, arrays, device="cpu", dtype=torch.float32) -> "Gaussians":
+        """Renderer input from map arrays (the GaussianMap.to_numpy() layout; never written to)."""
+        return cls(*(torch.as_tensor(np.array(arrays[n], dtype=np.float32 if dtype == torch.float32 else None),
+                                     dtype=dtype, device=device) for n in PARAM_NAMES))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """numpy arrays of the fields (CPU tensors: views sharing their memory, not copies)."""
+        return {n: t.detach().cpu().numpy() for n, t in zip(PARAM_NAMES, self.fields())}
+
 
 class GaussianMap:
     """The optimisable Gaussian map. Append and prune keep an Adam optimiser's state aligned."""
@@ -160,7 +177,8 @@ class GaussianMap:
 
     # ------------------------------------------------------------------ serialisation
     def to_numpy(self) -> dict[str, np.ndarray]:
-        out = {n: self.params[n].detach().cpu().numpy().copy() for n in PARAM_NAMES}
+        """Copies of the parameters and birth frames as numpy arrays."""
+        out = {n: a.copy() for n, a in self.tensors(detach=True).to_arrays().items()}
         out["birth_frame"] = self.birth_frame.cpu().numpy().copy()
         return out
 

@@ -51,7 +51,7 @@ def mapping_loss(rendered, view: View, config: MappingConfig, pixels: torch.Tens
     if (all(t.device.type == "cpu" and t.dtype == rendered.color.dtype for t in tensors)
             and rendered.color.dtype in (torch.float32, torch.float64)
             and not (view.color.requires_grad or view.depth.requires_grad)):
-        from .mapping_loss_cpu import mapping_loss_cpu
+        from .losses.mapping_loss_cpu import mapping_loss_cpu
         return mapping_loss_cpu(*tensors, None if pixels is None else pixels.cpu(), config.depth_weight,
                                 config.color_weight, config.ssim_weight)
     return _mapping_loss_torch(rendered, view, config, pixels)

@@ -10,13 +10,14 @@
     keyframes.add(frame, w2c)                   every n-th frame
 
 `process` runs the two halves in order (the sequential engine: deterministic, resumable bit for
-bit). The live engine (live.py) calls `track` and `map_frame` from two threads instead; both read
-the map through `MapVersion`s that `publish` makes, never the tensors the mapper is stepping.
+bit). The live engine (run/live.py) calls `track` and `map_frame` from two threads instead; both
+read the map through `MapVersion`s that `publish` makes, never the tensors the mapper is stepping.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import threading
 import time
@@ -72,12 +73,21 @@ class MapVersion:
     def __len__(self) -> int:
         return len(self.gaussians)
 
-    def to_numpy(self) -> dict[str, np.ndarray]:
-        g = self.gaussians
-        out = {n: getattr(g, n).detach().cpu().numpy() for n in
-               ("means", "colors", "rotations", "logit_opacities", "log_scales")}
+    @functools.cached_property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Read-only numpy arrays of the version (GaussianMap.to_numpy() layout), made on the first
+        call, by whichever thread reads first, and kept: on the CPU they share the tensors' memory."""
+        out = self.gaussians.to_arrays()
         out["birth_frame"] = self.birth_frame.cpu().numpy()
+        for a in out.values():
+            a.setflags(write=False)
         return out
+
+
+def snapshot_version(gmap: GaussianMap, number: int, frame_index: int) -> MapVersion:
+    """A MapVersion of `gmap` as it is now (copies: later steps never touch it)."""
+    g = gmap.tensors(detach=True)
+    return MapVersion(number, frame_index, Gaussians(*(x.clone() for x in g.fields())), gmap.birth_frame.clone())
 
 
 @dataclass
@@ -88,7 +98,8 @@ class MapStats:
 
 
 class SplaTAM:
-    def __init__(self, config: Config, intrinsics: Intrinsics, device="cpu", dtype=torch.float32):
+    def __init__(self, config: Config, intrinsics: Intrinsics, device="cpu", dtype=torch.float32,
+                 total_frames: int | None = None):
         self.config = config
         self.intrinsics = intrinsics
         self.device, self.dtype = torch.device(device), dtype
@@ -101,7 +112,7 @@ class SplaTAM:
         self.w2cs: list[np.ndarray] = []
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
-        self.total_frames: int | None = None     # lets the second-to-last frame become a keyframe
+        self.total_frames = total_frames          # lets the second-to-last frame become a keyframe
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
@@ -118,13 +129,29 @@ class SplaTAM:
         t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given)
         t1 = time.perf_counter()
         stats = self.map_frame(frame, w2c, t)
-        lost = self.lost_tracking.reason(t)
-        keyframe = lost is None and is_keyframe_time(t, self.total_frames, self.config.keyframes.every)
-        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=keyframe, lost=lost,
-                           num_gaussians=len(self.map), num_added=stats.added, num_pruned=stats.pruned,
-                           tracking_seconds=t1 - t0, mapping_seconds=time.perf_counter() - t1,
+        return self.result(frame, t, w2c, tracked, stats, len(self.map), t1 - t0, time.perf_counter() - t1)
+
+    @property
+    def frames_tracked(self) -> int:
+        """Frames whose pose is known (tracked, given or held while lost); the next frame's index."""
+        return len(self.w2cs)
+
+    def is_keyframe(self, t: int) -> bool:
+        """Frame t becomes a keyframe: every n-th frame (and the second-to-last), unless tracking was lost."""
+        return self.lost_tracking.reason(t) is None and is_keyframe_time(t, self.total_frames,
+                                                                         self.config.keyframes.every)
+
+    def result(self, frame: Frame, t: int, w2c: np.ndarray, tracked: TrackResult | None, stats: MapStats,
+               num_gaussians: int, tracking_seconds: float, mapping_seconds: float,
+               map_version: int = 0) -> FrameResult:
+        """What the engines report for frame t (one place for both)."""
+        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=self.is_keyframe(t),
+                           lost=self.lost_tracking.reason(t), num_gaussians=num_gaussians,
+                           num_added=stats.added, num_pruned=stats.pruned,
+                           tracking_seconds=tracking_seconds, mapping_seconds=mapping_seconds,
                            tracking_loss=tracked.loss if tracked else None,
-                           tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index)
+                           tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index,
+                           map_version=map_version)
 
     def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None
               ) -> tuple[int, np.ndarray, TrackResult | None]:
@@ -158,7 +185,7 @@ class SplaTAM:
             window = self.select_window(frame.color, frame.depth, w2c)
             stats.pruned = self.prune()
             stats.pruned += self.optimise(window, first=(t == 0))
-        if is_keyframe_time(t, self.total_frames, self.config.keyframes.every):
+        if self.is_keyframe(t):
             self.keyframes.add(t, w2c, frame.color, frame.depth)
         stats.seconds = time.perf_counter() - start
         return stats
@@ -207,11 +234,9 @@ class SplaTAM:
     # ------------------------------------------------------------------ map versions
     def publish(self, frame_index: int) -> MapVersion:
         """Make the current map the latest version (copy-on-publish: later steps never touch it)."""
-        g = self.map.tensors(detach=True)
-        copy = Gaussians(*(x.clone() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
         with self._version_lock:
             self._versions_made += 1
-            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone())
+            self._version = snapshot_version(self.map, self._versions_made, frame_index)
             return self._version
 
     def latest_version(self) -> MapVersion | None:

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import capture_fixtures as cf  # noqa: E402
+from helpers import captures as cf
 from splat_core.camera import invert_pose  # noqa: E402
 from splat_core.errors import InputError
 from splat_core.io import FORMATS, detect_format, open_capture
@@ -128,7 +128,7 @@ def test_tum_association_skips_unmatched_and_never_shifts(tmp_path):
 def test_tum_pose_interpolation():
     from splat_core.io.tum import interpolate_pose
     from splat_core.camera import pose_matrix
-    from capture_fixtures import _rot
+    from helpers.captures import _rot
 
     T0 = pose_matrix(_rot(0.0, 0, 0), [0, 0, 0])
     T1 = pose_matrix(_rot(0.2, 0, 0), [1.0, 0, 0])
@@ -508,7 +508,7 @@ def test_camera_file_says_whether_depth_is_registered_to_colour(tmp_path):
 
 def test_unregistered_capture_is_tracked_on_depth_alone(tmp_path):
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline
+    from splat_core.run import Pipeline
     fx = cf.write_tum(tmp_path / "t")
     cam = fx.path / "camera.yaml"
     config = load_config("cpu")

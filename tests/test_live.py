@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from splat_core.config import load_config
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.pixel_selection import choose_pixels
 from splat_core.render import render
 from splat_core.synthetic import SyntheticSource
@@ -69,7 +69,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
     def viewer():          # novel views of whatever version is newest, as the viewer thread does
         try:
             while not stop.is_set():
-                if live.live_engine is None or live.slam.latest_version() is None:
+                if live.slam.latest_version() is None:
                     continue
                 version = live.map_version()
                 seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))

@@ -7,9 +7,9 @@ import tracemalloc
 import numpy as np
 
 from splat_core.config import load_config
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.synthetic import SyntheticSource
-from splat_core.synthetic_corridor import PERIOD, CorridorSource
+from splat_core.synthetic import PERIOD, CorridorSource
 
 
 def test_a_frame_leaves_behind_only_its_keyframe_and_a_few_numbers(tmp_path):

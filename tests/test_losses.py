@@ -125,7 +125,7 @@ def test_l1_masked_nan_does_not_poison_value_or_gradient():
 # losses.ssim runs splat_core/ssim_cpu.py for CPU images with a constant target; the torch code
 # (ssim_map(...).mean(), F.conv2d and autograd) is the reference it must reproduce.
 
-from splat_core import ssim_cpu  # noqa: E402
+from splat_core.losses import ssim_cpu  # noqa: E402
 
 
 def _pair(shape, dtype, seed):

@@ -13,7 +13,7 @@ from splat_core.config import LostTrackingConfig, load_config
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 from splat_core.keyframes import is_keyframe_time
 from splat_core.metrics import ate_rmse
-from splat_core.pipeline import Pipeline
+from splat_core.run import Pipeline
 from splat_core.relocalise import Evidence, lost_reason, relative_motion
 from splat_core.slam import SplaTAM
 from splat_core.synthetic import HardCapture, turn_away

@@ -30,7 +30,7 @@ from splat_core.io import nerfcapture_dds  # noqa: E402
 from splat_core.io.nerfcapture import NeRFCaptureCapture  # noqa: E402
 from splat_core.io.nerfcapture_stream import NeRFCaptureStream  # noqa: E402
 from splat_core.io.trajectory import read_tum_trajectory  # noqa: E402
-import nerfcapture_publisher as pub  # noqa: E402  (tests/ is on sys.path under pytest)
+from helpers import nerfcapture_publisher as pub  # noqa: E402
 
 dds = pytest.mark.skipif(importlib.util.find_spec("cyclonedds") is None or not LOOPBACK.is_file(),
                          reason='needs cyclonedds (pip install "splatam-viewer[stream]") and '

@@ -14,10 +14,10 @@ from app.cli import splatam_main
 from splat_core.config import MappingConfig, load_config
 from splat_core.gaussians import GaussianMap
 from splat_core.io.ply import read_ply
-from splat_core.pipeline import Pipeline, open_input
+from splat_core.run import Pipeline, open_input
 from splat_core.refine import RefineJob, RefineSettings
 from splat_core.refine.density import DensitySettings, GradientStats, densify_and_prune
-import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
+from helpers import captures as fixtures
 
 # SLAM at 32x24 on a 64x48 capture: refinement at the capture's resolution has detail to add.
 TINY = """base: cpu
@@ -163,7 +163,7 @@ def test_viewer_refine_button_shows_the_map_while_refining_then_replaces_it(run)
 
     from app.browse import load_run
     from app.viewer import StaticSource, build_viewer
-    from viewer_helpers import click, wait_until
+    from helpers.viewer import click, wait_until
 
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     app = build_viewer(server, StaticSource(load_run(run)), render_backend="reference", update_hz=20)

@@ -12,8 +12,8 @@ from app.cli import splatam_main
 from splat_core.config import load_config
 from splat_core.io.ply import read_ply
 from splat_core.io.trajectory import read_tum_trajectory
-from splat_core.pipeline import Pipeline, open_input
-import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
+from splat_core.run import Pipeline, open_input
+from helpers import captures as fixtures
 
 TINY = """base: cpu
 resolution: [64, 48]

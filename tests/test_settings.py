@@ -11,15 +11,15 @@ import numpy as np
 import pytest
 import yaml
 
-import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
+from helpers import captures as fixtures
 from app.cli import splatam_main
 from splat_core import config as C
 from splat_core.config import load_config
 from splat_core.errors import InputError
 from splat_core.io.detect import FORMATS
-from splat_core.pipeline import Pipeline
-from splat_core.resolution import capture_size, parse_resolution, working_size
-from splat_core.synthetic_phone import SyntheticPhoneCapture
+from splat_core.run import Pipeline
+from splat_core.run.resolution import capture_size, parse_resolution, working_size
+from splat_core.synthetic import SyntheticPhoneCapture
 
 BUDGETS = ("cpu", "cpu_dense", "splatam", "splatam_s")
 SOURCE_FORMATS = (*FORMATS, "synthetic", "nerfcapture-stream")

@@ -33,7 +33,7 @@ lost_tracking: {max_speed: 10.0}
 @pytest.fixture(scope="module")
 def slam_run(tmp_path_factory):
     """A real (tiny) SLAM run with a checkpoint, so it has keyframes."""
-    import capture_fixtures as fixtures
+    from helpers import captures as fixtures
     from app.cli import splatam_main
 
     root = tmp_path_factory.mktemp("video")

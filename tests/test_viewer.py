@@ -17,7 +17,7 @@ from splat_core.errors import InputError
 from splat_core.io.ply import read_ply, write_ply
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 
-from viewer_helpers import FakePipeline, blob_map, wait_until
+from helpers.viewer import FakePipeline, blob_map, wait_until
 
 
 def test_keyframe_buckets_show_the_map_as_it_was():
@@ -102,14 +102,14 @@ class FakeClient:
     """Enough of a viser ClientHandle for the scrubber: its own GUI and scene on the real server,
     recording which scene names it shadows with hidden nodes."""
 
-    def __init__(self, client_id):
+    def __init__(self, server, client_id):
         import types
 
         from viser import ViserServer  # noqa: F401
         self.client_id = client_id
         self.hidden: set = set()
         self.camera = types.SimpleNamespace(wxyz=None, position=None)
-        self.gui = _server_for_fakes[0].gui
+        self.gui = server.gui
         outer = self
 
         class Scene:
@@ -125,18 +125,6 @@ class FakeClient:
     def atomic(self):
         import contextlib
         return contextlib.nullcontext()
-
-
-_server_for_fakes = []
-
-
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    _server_for_fakes[:] = [s]
-    yield s
-    s.stop()
 
 
 def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
@@ -155,7 +143,7 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert sorted(app.camera_layer.keyframe_frames) == [0, 2, 4]
         assert "6 / 6" in app.panels.status.content
         # scrubbing is per page: a page scrubbed to the first keyframe hides later chunks for itself only
-        page_a, page_b = FakeClient(0), FakeClient(1)
+        page_a, page_b = FakeClient(server, 0), FakeClient(server, 1)
         for c in (page_a, page_b):
             app.scrubber.attach(c)
         scrub_a = app.scrubber.pages[0]

@@ -4,42 +4,20 @@ state. Skipped when /usr/bin/chromium or playwright is missing."""
 
 from __future__ import annotations
 
-import os
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from viewer_helpers import FakePipeline, wait_until
+from helpers.viewer import FakePipeline, wait_until
 
-CHROMIUM = os.environ.get("CHROMIUM", "/usr/bin/chromium")
-ARGS = ["--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
-        "--disable-quic", "--no-first-run", "--disable-background-networking",
-        "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage"]
+from common import CHROMIUM, changed_pixels  # noqa: F401 (benchmarks/common.py, on sys.path via conftest)
 
 pytestmark = [
     pytest.mark.browser,
     pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} not installed (apt-get install chromium)"),
 ]
-
-
-@pytest.fixture(scope="module")
-def browser():
-    sync_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed")
-    pw = sync_api.sync_playwright().start()
-    b = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=ARGS)
-    yield b
-    b.close()
-    pw.stop()
-
-
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
 
 
 def connect(browser, server):
@@ -66,10 +44,6 @@ def look(client, position, look_at):
 
 def render(client, h=150, w=200):
     return np.asarray(client.get_render(h, w, timeout=60), np.int32)
-
-
-def changed_pixels(a, b, threshold=40):
-    return int((np.abs(a[..., :3] - b[..., :3]).sum(axis=-1) > threshold).sum())
 
 
 def count(img, lo, hi):
@@ -112,7 +86,7 @@ def test_live_slam_pause_resume(browser, server, tmp_path):
     from app.viewer import build_viewer
     from app.worker import SlamWorker
     from splat_core.config import load_config
-    from splat_core.pipeline import Pipeline, open_input
+    from splat_core.run import Pipeline, open_input
 
     config = load_config("cpu", {"resolution": [64, 48], "tracking": {"iterations": 4},
                                  "mapping": {"iterations": 4, "first_frame_iterations": 8}})
@@ -154,7 +128,7 @@ def test_points_while_running_then_splats_in_the_browser(browser, server):
     """The map drawn as points while SLAM runs covers about what its splats cover once paused."""
     from app.snapshot import KeyframeView, MapSnapshot
     from app.viewer.scene import MapLayer
-    from viewer_helpers import blob_map
+    from helpers.viewer import blob_map
 
     m = blob_map(2000, 0).to_numpy()
     kfs = (KeyframeView(0, np.eye(4), np.zeros((4, 4, 3), np.uint8)),)

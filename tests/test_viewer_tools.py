@@ -17,15 +17,7 @@ from splat_core.gaussians import GaussianMap
 from splat_core.render import Renderer
 from splat_core.synthetic import look_at_c2w
 
-from viewer_helpers import FakePipeline, wait_until
-
-
-@pytest.fixture
-def server():
-    import viser
-    s = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    yield s
-    s.stop()
+from helpers.viewer import FakePipeline, wait_until
 
 
 def plane(x_range, y_range, z: float, spacing: float = 0.01) -> np.ndarray:

@@ -10,9 +10,9 @@ import pytest
 
 from splat_core.camera import Intrinsics, invert_pose, pose_matrix, project, quat_to_rotmat_np
 
-from test_viewer_browser import browser, connect, look, pytestmark, server  # noqa: F401 (fixtures, marks)
+from test_viewer_browser import connect, look, pytestmark  # noqa: F401 (marks)
 from test_viewer_tools import A, B, snapshot_of, two_walls
-from viewer_helpers import wait_until
+from helpers.viewer import wait_until
 
 
 def click_at(page, client, point) -> None:

@@ -13,8 +13,8 @@ import urllib.request
 import numpy as np
 import pytest
 
-from test_viewer_browser import ARGS, CHROMIUM, browser, look, pytestmark, render  # noqa: F401
-from viewer_helpers import FakePipeline, wait_until
+from helpers.viewer import FakePipeline, wait_until
+from test_viewer_browser import look, pytestmark, render  # noqa: F401 (marks)
 
 GREY = 0.5
 

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def settings(source, config) -> dict:
     """The settings layers a run of `config` on `source` uses, and its working size."""
     from splat_core.config import describe_layers, format_layer_settings
-    from splat_core.resolution import describe_resolution, source_working_size
+    from splat_core.run.resolution import describe_resolution, source_working_size
 
     return {"budget": config.name, "format_layer": config.format_layer,
             "format_settings": format_layer_settings(config.format_layer), "summary": describe_layers(config),
@@ -137,7 +137,7 @@ def format_text(info: dict) -> str:
 def main(args) -> int:
     from app.run_setup import load_run_config
     from splat_core.io import open_capture
-    from splat_core.pipeline import resolve_device
+    from splat_core.run import resolve_device
 
     source = open_capture(args.input, format=args.format)
     config = load_run_config(args.config, source.format_name, resolve_device("auto"), args.resolution)

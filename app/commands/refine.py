@@ -26,7 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main(args) -> int:
     from tqdm import tqdm
 
-    from splat_core.pipeline import resolve_device
+    from splat_core.run import resolve_device
     from splat_core.refine import RefineJob, RefineSettings
 
     settings = RefineSettings(iterations=args.iterations, anisotropic=args.anisotropic)

@@ -41,10 +41,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def resolve_intrinsics(args, run: Path):
     """Flags override the run's recorded intrinsics; without either, 640x480 with a 60 deg hfov."""
-    from app.browse import intrinsics_from_run
     from splat_core.camera import Intrinsics
+    from splat_core.run.run_folder import RunFolder
 
-    base = intrinsics_from_run(run) if run.is_dir() else None
+    base = RunFolder(run).intrinsics() if run.is_dir() else None
     width = args.width or (base.width if base else 640)
     height = args.height or (base.height if base else 480)
     if base and (width, height) != (base.width, base.height):
@@ -65,15 +65,20 @@ def path_poses(run: Path, path: str) -> tuple[np.ndarray, np.ndarray]:
         if len(c2ws) == 0:
             raise InputError(f"{path}: no poses")
         return stamps, c2ws
-    from app.browse import load_run
+    from splat_core.camera import invert_pose
+    from splat_core.run.run_folder import RunFolder
 
-    snap = load_run(run)
-    if not snap.keyframes:
+    folder = RunFolder(run)
+    ckpt = folder.checkpoint_or_none() if run.is_dir() else None
+    intrinsics = folder.intrinsics(ckpt) if ckpt is not None else None
+    keyframes = folder.keyframes(ckpt, intrinsics) if intrinsics is not None else []
+    if not keyframes:
         raise InputError(f"{run}: no keyframes (a run folder with checkpoint/ has them); "
                          f"pass --path TRAJECTORY.txt")
-    frames = snap.keyframe_frames
-    stamps = snap.timestamps[frames] if len(frames) and frames.max() < len(snap.timestamps) else np.zeros(0)
-    return stamps, np.stack([kf.c2w for kf in snap.keyframes])
+    frames = np.array([kf.frame_index for kf in keyframes])
+    timestamps, _ = folder.read_trajectory()
+    stamps = timestamps[frames] if frames.max() < len(timestamps) else np.zeros(0)
+    return stamps, np.stack([invert_pose(kf.w2c) for kf in keyframes])
 
 
 def video_length(stamps: np.ndarray, n_poses: int, seconds: float | None) -> float:
@@ -103,12 +108,12 @@ def _device(backend: str) -> str:
 def render_images(args, run: Path) -> int:
     import cv2
 
-    from app.browse import near_plane_of, read_map
+    from app.browse import near_plane_of
     from app.video import render_frames
-    from splat_core.io.map_files import map_path_of
+    from splat_core.io.map_files import map_path_of, read_map_file
     from splat_core.io.trajectory import read_tum_trajectory
 
-    arrays = read_map(map_path_of(run))
+    arrays = read_map_file(map_path_of(run))
     _, c2ws = read_tum_trajectory(args.trajectory)
     if len(c2ws) == 0:
         raise InputError(f"{args.trajectory}: no poses")
@@ -130,10 +135,10 @@ def render_images(args, run: Path) -> int:
 def render_video(args, run: Path) -> int:
     import time
 
-    from app.browse import near_plane_of, read_map
+    from app.browse import near_plane_of
     from app.video import mp4_path, parse_size, render_frames, write_mp4
     from splat_core.camera_path import CameraPath
-    from splat_core.io.map_files import map_path_of
+    from splat_core.io.map_files import map_path_of, read_map_file
 
     out = mp4_path(args.video)
     if args.fps <= 0:
@@ -144,7 +149,7 @@ def render_video(args, run: Path) -> int:
     if intr.width % 2 or intr.height % 2:   # H.264 needs even sizes: drop the last row / column
         args.width, args.height = intr.width - intr.width % 2, intr.height - intr.height % 2
         intr = resolve_intrinsics(args, run)
-    arrays = read_map(map_path_of(run))
+    arrays = read_map_file(map_path_of(run))
     stamps, poses = path_poses(run, args.path)
     n = max(1, int(round(video_length(stamps, len(poses), args.seconds) * args.fps)))
     c2ws = CameraPath(poses).sample(n)

@@ -28,8 +28,8 @@ import torch
 import viser
 
 from splat_core.camera import Intrinsics
-from splat_core.gaussians import Gaussians
 
+from ..video import gaussians_of
 from ..snapshot import MapSnapshot
 from .access import Access, tolerate_malformed_messages
 from .assets import WebAssets, apply_theme, load_assets
@@ -108,7 +108,7 @@ class ViewerApp:
         self.novel_views: dict[int, NovelView] = {}
         self._snapshot: MapSnapshot | None = None
         self.applied: MapSnapshot | None = None
-        self._render_cache: tuple | None = None   # (map_version, birth limit, Gaussians)
+        self._render_cache: tuple | None = None   # (map, birth limit, Gaussians born up to it)
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._wake = threading.Event()
@@ -265,18 +265,16 @@ class ViewerApp:
         snap = snap or self._snapshot
         if snap is None or snap.num_gaussians == 0:
             return None
-        key = (snap.map_version, id(snap.gaussians["means"]), birth_limit)
-        cache = self._render_cache
-        if cache is None or cache[0] != key:
-            g = snap.gaussians
-            keep = slice(None) if birth_limit is None else np.asarray(g["birth_frame"]) <= birth_limit
-            t = lambda a: torch.as_tensor(np.ascontiguousarray(np.asarray(a)[keep]), dtype=torch.float32)  # noqa
-            gaussians = Gaussians(t(g["means"]), t(g["colors"]), t(g["rotations"]),
-                                  t(g["logit_opacities"]), t(g["log_scales"]))
-            self._render_cache = cache = (key, gaussians)
+        gaussians = gaussians_of(snap.gaussians)
+        if birth_limit is not None:     # the map as it was at a keyframe: one selection per map and keyframe
+            key = (snap.map_version, id(snap.gaussians), birth_limit)
+            if self._render_cache is None or self._render_cache[0] != key:
+                keep = torch.as_tensor(np.asarray(snap.gaussians["birth_frame"]) <= birth_limit)
+                self._render_cache = (key, gaussians.select(keep.to(gaussians.means.device)))
+            gaussians = self._render_cache[1]
         with torch.no_grad():
             return Renderer(snap.near_plane, self.render_backend).render_visible(
-                cache[1], intr, np.asarray(w2c, np.float32))
+                gaussians, intr, np.asarray(w2c, np.float32))
 
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:

@@ -59,7 +59,6 @@ class MeasureTool:
         self.render_backend = render_backend
         self.points: list[np.ndarray] = []
         self.distance: float | None = None
-        self._cache: tuple | None = None    # (map key, Gaussians)
         self._lock = threading.Lock()
         self._listening = False
         gui = server.gui
@@ -89,10 +88,7 @@ class MeasureTool:
         snap = self.snapshot_fn()
         if snap is None or snap.num_gaussians == 0:
             return None, None
-        key = (snap.map_version, id(snap.gaussians["means"]))
-        if self._cache is None or self._cache[0] != key:
-            self._cache = (key, gaussians_of(snap.gaussians))
-        return self._cache[1], snap.near_plane
+        return gaussians_of(snap.gaussians), snap.near_plane
 
     def click(self, c2w: np.ndarray, intrinsics: Intrinsics, ray_direction) -> np.ndarray | None:
         """One click: the picked point (None on a miss, which changes nothing)."""

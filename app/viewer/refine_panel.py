@@ -25,7 +25,7 @@ import viser
 
 from splat_core.errors import InputError
 
-from ..snapshot import MapSnapshot, freeze_gaussians
+from ..snapshot import MapSnapshot, VersionArrays
 from .feed import READY_STATES
 
 log = logging.getLogger(__name__)
@@ -123,8 +123,8 @@ class RefinePanel:
             self.button.disabled = self._run_dir is None
 
     def _publish(self, job) -> None:
-        """Show the job's map as it stands (a frozen copy: the job goes on stepping its tensors)."""
-        self.feed.publish_refined(freeze_gaussians(job.refiner.map.to_numpy()))
+        """Show the job's map as it stands (a published copy: the job goes on stepping its tensors)."""
+        self.feed.publish_refined(VersionArrays(job.refiner.publish()))
 
     def close(self, timeout: float = 30.0) -> None:
         self._stop.set()

@@ -129,7 +129,7 @@ def detect_format(path) -> str:
         raise InputError(f"{path}: no such file or folder")
     if path.is_file():
         if path.suffix.lower() in (".r3d", ".zip"):
-            from .common import ZipStore
+            from .stores import ZipStore
 
             store = ZipStore(path)  # raises on a damaged archive
             if store.exists("metadata") or store.exists("metadata.json"):

@@ -26,7 +26,9 @@ import numpy as np
 
 from ..camera import c2w_opengl_to_opencv
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, make_intrinsics, open_store, sort_by_time
+from .camera_files import check_pose, make_intrinsics
+from .common import IndexedCapture, sort_by_time
+from .stores import open_store
 from .images import decode_color, decode_depth_image, raw_depth_to_metres
 
 DEFAULT_METRES_PER_UNIT = 10.0 / 65535.0

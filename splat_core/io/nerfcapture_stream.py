@@ -32,7 +32,7 @@ import numpy as np
 from ..camera import Intrinsics, c2w_opengl_to_opencv
 from ..errors import InputError
 from ..frame import Frame
-from .common import make_intrinsics
+from .camera_files import make_intrinsics
 from .images import color_to_float, raw_depth_to_metres, read_color, read_depth_png
 from .nerfcapture_dds import DOMAIN_ID, TOPIC, dds_config_label, decode
 from .nerfcapture_record import UNITS_PER_METRE, CaptureRecorder

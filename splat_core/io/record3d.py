@@ -24,7 +24,9 @@ import numpy as np
 
 from ..camera import c2w_opengl_to_opencv, pose_matrix, quat_to_rotmat_np
 from ..errors import InputError
-from .common import IndexedCapture, make_intrinsics, open_store
+from .camera_files import make_intrinsics
+from .common import IndexedCapture
+from .stores import open_store
 from .images import decode_color, sanitize_depth
 
 METADATA_NAMES = ("metadata", "metadata.json")

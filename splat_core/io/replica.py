@@ -12,7 +12,8 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, find_camera_file, load_camera_file, make_intrinsics
+from .camera_files import check_pose, find_camera_file, load_camera_file, make_intrinsics
+from .common import IndexedCapture
 from .images import read_color, read_depth_png
 
 DEFAULT_CAMERA = dict(fx=600.0, fy=600.0, cx=599.5, cy=339.5, width=1200, height=680, depth_scale=6553.5)

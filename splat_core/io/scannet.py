@@ -18,8 +18,8 @@ import re
 import numpy as np
 
 from ..errors import InputError
-from .common import (IndexedCapture, check_pose, find_camera_file, intrinsics_for_image, load_camera_file,
-                     make_intrinsics)
+from .camera_files import check_pose, find_camera_file, intrinsics_for_image, load_camera_file, make_intrinsics
+from .common import IndexedCapture
 from .images import decode_depth_image, read_bytes, read_color, read_depth_png
 
 DEPTH_SCALE = 1000.0

@@ -24,7 +24,8 @@ import numpy as np
 
 from ..camera import Intrinsics, c2w_opengl_to_opencv
 from ..errors import InputError
-from .common import IndexedCapture, check_pose, make_intrinsics
+from .camera_files import check_pose, make_intrinsics
+from .common import IndexedCapture
 from .images import decode_depth_image, raw_depth_to_metres, read_bytes, read_color, read_depth_png
 
 TRANSFORMS = Path("nerfstudio") / "transforms_undistorted.json"

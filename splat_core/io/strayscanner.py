@@ -21,7 +21,8 @@ import numpy as np
 
 from ..camera import pose_matrix, quat_to_rotmat_np
 from ..errors import InputError
-from .common import IndexedCapture, intrinsics_for_image, sort_by_time
+from .camera_files import intrinsics_for_image
+from .common import IndexedCapture, sort_by_time
 from .images import color_to_float, decode_depth_image, raw_depth_to_metres, read_bytes, sanitize_depth
 
 DEPTH_SCALE = 1000.0

@@ -20,7 +20,8 @@ import numpy as np
 
 from ..camera import pose_matrix, quat_to_rotmat_np, rotmat_to_quat
 from ..errors import InputError
-from .common import IndexedCapture, find_camera_file, load_camera_file, make_intrinsics, sort_by_time
+from .camera_files import find_camera_file, load_camera_file, make_intrinsics
+from .common import IndexedCapture, sort_by_time
 from .images import read_color, read_depth_png
 from .trajectory import parse_tum_lines, read_tum_trajectory
 

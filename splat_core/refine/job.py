@@ -24,14 +24,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..io import checkpoint
-from ..io.atomic import write_text_atomic
+from ..run.run_folder import REFINED_MAP, RunFolder
 from ..render import Renderer
 from .evaluate import heldout_metrics
 from .refiner import Refiner, RefineSettings
 from .run_data import frame_views, load_run_data, open_run_capture, training_views
 
-CHECKPOINT = "refine_checkpoint"
-OUTPUT = "map_refined.ply"
+OUTPUT = REFINED_MAP
 
 
 class RefineJob:
@@ -54,7 +53,8 @@ class RefineJob:
         self.before: dict | None = None     # held-out metrics of the SLAM map
         self.seconds = 0.0                  # optimisation time (iterations only)
         self.resumed_from = 0
-        directory = self.run_dir / CHECKPOINT
+        self.folder = RunFolder(self.run_dir)
+        directory = self.folder.refine_checkpoint_dir
         if restart and directory.exists():
             shutil.rmtree(directory)
         elif checkpoint.exists(directory):
@@ -101,7 +101,7 @@ class RefineJob:
         if self.before is None:
             self.before = self.evaluate()
         after = self.evaluate()
-        write_ply(self.run_dir / OUTPUT, self.refiner.map.to_numpy())
+        write_ply(self.folder.refined_map, self.refiner.map.to_numpy())
         gain = None if after["psnr"] is None else after["psnr"] - self.before["psnr"]
         section = dict(
             output=OUTPUT, resolution=self.resolution, size=[self.intrinsics.width, self.intrinsics.height],
@@ -114,16 +114,8 @@ class RefineJob:
             machine=platform.processor() or platform.machine())
         if self.source is None:
             section["note"] = "the run does not record its capture: no held-out frames to evaluate on"
-        metrics_path = self.run_dir / "metrics.json"
-        metrics = {}
-        if metrics_path.is_file():
-            try:
-                metrics = json.loads(metrics_path.read_text())
-            except ValueError:
-                raise InputError(f"{metrics_path}: not valid JSON; not overwriting it") from None
-        metrics["refine"] = section
-        write_text_atomic(metrics_path, json.dumps(metrics, indent=1))
-        shutil.rmtree(self.run_dir / CHECKPOINT, ignore_errors=True)
+        self.folder.add_metrics_section("refine", section)
+        shutil.rmtree(self.folder.refine_checkpoint_dir, ignore_errors=True)
         return section
 
     # ------------------------------------------------------------------ checkpoints
@@ -135,7 +127,7 @@ class RefineJob:
     def save_checkpoint(self) -> None:
         meta = dict(self._key(), iteration=self.iteration, before=self.before, seconds=self.seconds,
                     density_log=self.refiner.density_log)
-        checkpoint.save(self.run_dir / CHECKPOINT, self.refiner.state_arrays(), meta)
+        checkpoint.save(self.folder.refine_checkpoint_dir, self.refiner.state_arrays(), meta)
 
     def _resume(self, directory: Path) -> None:
         try:

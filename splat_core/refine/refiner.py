@@ -26,6 +26,7 @@ from ..config import MappingConfig
 from ..gaussians import PARAM_NAMES, GaussianMap
 from ..mapping import View, mapping_loss
 from ..render import Renderer
+from ..slam import MapVersion, snapshot_version
 from .density import DensitySettings, GradientStats, densify_and_prune
 
 
@@ -102,6 +103,10 @@ class Refiner:
         return self.last_loss
 
     # ------------------------------------------------------------------ state (checkpoints)
+    def publish(self) -> MapVersion:
+        """The map as it stands, as an immutable MapVersion (the type SLAM publishes; numbered by iteration)."""
+        return snapshot_version(self.map, self.iteration, -1)
+
     def state_arrays(self) -> dict:
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         arrays.update(self.stats.to_arrays())

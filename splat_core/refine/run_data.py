@@ -1,6 +1,6 @@
 """What refinement reads from a finished run folder, and the frames it trains and evaluates on.
 
-A run folder (pipeline.py) holds config.yaml, map.ply, trajectory.txt, metrics.json and
+A run folder (run/run_folder.py) holds config.yaml, map.ply, trajectory.txt, metrics.json and
 checkpoint/; the checkpoint has the map's raw parameters, the keyframes (at the working
 resolution, with their frozen poses; read with keyframes.read_keyframes), every frame's estimated
 pose, and the input's path.
@@ -21,11 +21,11 @@ import yaml
 from ..camera import Intrinsics
 from ..config import Config, config_from_dict
 from ..errors import InputError
-from ..io import checkpoint
 from ..io.source import FrameSource
 from ..mapping import View
 from ..gaussians import GaussianMap
-from ..keyframes import Keyframe, read_keyframes
+from ..keyframes import Keyframe
+from ..run.run_folder import RunFolder
 
 RESOLUTIONS = ("capture", "working")
 
@@ -58,35 +58,25 @@ class RunData:
 
 def load_run_data(run_dir, device="cpu") -> RunData:
     """A finished run folder's state; InputError naming what is missing or unreadable."""
-    run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise InputError(f"{run_dir}: no such run folder")
-    for name in ("map.ply", "config.yaml"):
-        if not (run_dir / name).is_file():
-            raise InputError(f"{run_dir}: not a finished run folder (expected {name} inside)")
-    if not checkpoint.exists(run_dir / "checkpoint"):
-        raise InputError(f"{run_dir / 'checkpoint'}: no checkpoint (refinement needs its keyframes)")
+    folder = RunFolder(run_dir)
+    ckpt = folder.require_finished()
     try:
-        config = config_from_dict(yaml.safe_load((run_dir / "config.yaml").read_text()))
+        config = config_from_dict(yaml.safe_load(folder.config.read_text()))
     except (yaml.YAMLError, TypeError, ValueError) as e:
-        raise InputError(f"{run_dir / 'config.yaml'}: not a run's config ({e})") from None
-    ckpt = checkpoint.load(run_dir / "checkpoint")
+        raise InputError(f"{folder.config}: not a run's config ({e})") from None
     meta = ckpt.meta
-    if meta.get("total") is not None and meta["frames_done"] < meta["total"]:
-        raise InputError(f"{run_dir}: the run is unfinished ({meta['frames_done']} of {meta['total']} frames); "
-                         "finish it with splatam run --resume first")
-    intr = Intrinsics(**{k: meta["intrinsics"][k] for k in ("fx", "fy", "cx", "cy", "width", "height")})
-    keyframes = read_keyframes(run_dir / "checkpoint", ckpt.arrays, intr)
+    intr = Intrinsics.from_dict(meta["intrinsics"])
+    keyframes = folder.keyframes(ckpt, intr)
     if not keyframes:
-        raise InputError(f"{run_dir / 'checkpoint'}: the run has no keyframes")
+        raise InputError(f"{folder.checkpoint_dir}: the run has no keyframes")
     gmap = GaussianMap.from_numpy(ckpt.gaussians(), device=device)
-    return RunData(run_dir, config, intr, gmap, [w for w in np.asarray(ckpt.arrays["w2cs"], np.float64)],
+    return RunData(folder.path, config, intr, gmap, [w for w in np.asarray(ckpt.arrays["w2cs"], np.float64)],
                    float(ckpt.arrays["scene_radius"]), keyframes, list(meta["records"]), meta.get("input"))
 
 
 def open_run_capture(run: RunData, override=None) -> FrameSource | None:
     """The run's capture (`override`: a path given by the user), or None when none is recorded."""
-    from ..pipeline import open_input
+    from ..run import open_input
 
     if override is not None:
         return open_input(str(override))
@@ -101,7 +91,7 @@ def open_run_capture(run: RunData, override=None) -> FrameSource | None:
 
 def frame_views(run: RunData, source: FrameSource, intr: Intrinsics, indices: list[int]) -> list[View]:
     """Processed frames `indices` re-read from the capture at `intr`, at their estimated poses."""
-    from ..pipeline import prepare_frame
+    from ..run.frame_feed import prepare_frame
 
     views = []
     for k in indices:

@@ -27,11 +27,11 @@ import torch
 
 from ..camera import Intrinsics
 from ..gaussians import PARAM_NAMES, GaussianMap, Gaussians
+from ._constants import TILE
 from .project import frustum_mask, project_gaussians
 from .reference import rasterize_reference
 
 BACKENDS = ("auto", "cpu", "cuda", "reference")
-TILE = 16          # the CPU rasterizer's tile size in pixels; `tiles` masks are on this grid
 
 
 def tile_grid(intrinsics: Intrinsics) -> tuple[int, int]:

@@ -51,8 +51,7 @@ from numba import njit, prange, types
 from numba.extending import intrinsic, overload
 
 from ..parallel import numba_lock
-from . import TILE
-from .reference import ALPHA_MAX, ALPHA_MIN, T_MIN
+from ._constants import ALPHA_MAX, ALPHA_MIN, T_MIN, TILE
 
 # The bounding boxes solve q(d) <= K * (1 + SPAN_SLACK) + SPAN_SLACK, a little more than the exact
 # cutoff, so that rounding in the box arithmetic never drops a pixel the per-pixel test would keep.

@@ -61,7 +61,8 @@ from numba.extending import intrinsic
 from ..camera import Intrinsics
 from ..parallel import numba_lock
 from .cpu import _exp
-from .project import RADIUS_SIGMAS, Projected, clamp_limits
+from ._constants import RADIUS_SIGMAS
+from ._torch_impl import Projected, clamp_limits
 
 # Layout of the `consts` array handed to the kernels (in the working dtype).
 (_K_FX, _K_FY, _K_CX, _K_CY, _K_LXN, _K_LXP, _K_LYN, _K_LYP, _K_NEAR, _K_EPS, _K_RSIG, _K_HALF,

@@ -1,16 +1,14 @@
 """Dense pure-torch compositing: the oracle the fast backends are tested against.
 
 Every pixel looks at every Gaussian (N x P memory), so this is for tiny scenes only. It applies
-the 3DGS compositing rules literally (DESIGN.md §4) and lets torch autograd do the backward.
+the 3DGS compositing rules literally (docs/design.md, the renderer contract) and lets torch autograd do the backward.
 """
 
 from __future__ import annotations
 
 import torch
 
-ALPHA_MAX = 0.99
-ALPHA_MIN = 1.0 / 255.0
-T_MIN = 1e-4
+from ._constants import ALPHA_MAX, ALPHA_MIN, T_MIN
 
 
 def rasterize_reference(means2d, conics, opacities, features, depths, radii, width, height):

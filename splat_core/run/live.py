@@ -5,6 +5,9 @@
     engine.drain()                      # wait until everything handed over is mapped (checkpoints, the end)
     engine.close()
 
+It offers the same interface as the sequential engine (engines.py), so the pipeline never asks
+which one it drives.
+
 The tracker (the thread that calls `process`: the pipeline's, the viewer's worker) tracks each frame
 against the newest `MapVersion` the mapper published and hands (frame, pose) to the mapper. The
 mapper takes everything handed over since its last step, and in one step:
@@ -26,7 +29,7 @@ Cores: under Numba's thread-safe "omp" layer the two threads run their kernels a
 (parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
 stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measured on 2 cores,
 giving each thread half the cores (Numba's threads are per thread) or halving torch's threads
-was slower (README).
+was slower (docs/engines.md).
 
 Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
 sequential engine (SplaTAM.process) is the deterministic reference.
@@ -38,10 +41,9 @@ import threading
 import time
 from collections import deque
 
-from .config import LiveConfig
-from .frame import Frame
-from .keyframes import is_keyframe_time
-from .slam import FrameResult, SplaTAM
+from ..config import LiveConfig
+from ..frame import Frame
+from ..slam import FrameResult, MapStats, MapVersion, SplaTAM
 
 
 class LiveEngine:
@@ -50,7 +52,7 @@ class LiveEngine:
         self._cond = threading.Condition()
         self._pending: deque = deque()      # (t, frame, w2c) handed over, not yet mapped
         self._handed = -1                   # newest frame index handed over
-        self._mapped = len(slam.w2cs) - 1   # newest frame index in a published version (resume: all)
+        self._mapped = slam.frames_tracked - 1   # newest frame index in a published version (resume: all)
         self._closing = False
         self.error: BaseException | None = None
         self.mapper_steps = 0
@@ -58,31 +60,39 @@ class LiveEngine:
         self.wait_seconds = 0.0
         self.num_added = self.num_pruned = 0
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
-        self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
-        self._thread.start()
+        self._thread: threading.Thread | None = None    # started by the first frame
+
+    def _start(self) -> None:
+        if self._thread is None:
+            self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
+            self._thread.start()
 
     # ------------------------------------------------------------------ the tracker's side
     def process(self, frame: Frame, w2c_given=None) -> FrameResult:
-        t = len(self.slam.w2cs)
+        self._start()
+        t = self.slam.frames_tracked
         waited = self._wait_for_map(t)
         start = time.perf_counter()
         version = self.slam.latest_version()
         t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
-        tracking_seconds = time.perf_counter() - start
-        lost = self.slam.lost_tracking.reason(t)     # the mapper skips a lost frame (SplaTAM.map_frame)
+        # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
+        # the time reported as mapping is the time this frame waited for the map.
+        result = self.slam.result(frame, t, w2c, tracked, MapStats(), len(version), time.perf_counter() - start,
+                                  waited, map_version=version.number)
         with self._cond:
             self._pending.append((t, frame, w2c))
             self._handed = t
             self._cond.notify_all()
-        return FrameResult(
-            index=t, timestamp=frame.timestamp, w2c=w2c,
-            is_keyframe=lost is None and is_keyframe_time(t, self.slam.total_frames, self.slam.config.keyframes.every),
-            lost=lost,
-            num_gaussians=len(version), num_added=0, num_pruned=0,
-            tracking_seconds=tracking_seconds, mapping_seconds=waited,
-            tracking_loss=tracked.loss if tracked else None,
-            tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index,
-            map_version=version.number)
+        return result
+
+    def map_version(self) -> MapVersion:
+        """The newest version the mapper published (safe to read from any thread)."""
+        return self.slam.latest_version()
+
+    def stats(self) -> dict:
+        return dict(live=dict(max_lag=self.config.max_lag, mapper_steps=self.mapper_steps,
+                              mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
+                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned))
 
     def _wait_for_map(self, t: int) -> float:
         """Block while the map is too far behind frame t (the policy above); returns seconds waited."""
@@ -107,7 +117,8 @@ class LiveEngine:
         with self._cond:
             self._closing = True
             self._cond.notify_all()
-        self._thread.join()
+        if self._thread is not None:
+            self._thread.join()
         self._raise()
 
     def _raise(self) -> None:
@@ -133,10 +144,10 @@ class LiveEngine:
 
     def _map(self, batch: list) -> None:
         start = time.perf_counter()
-        slam, every = self.slam, self.slam.config.keyframes.every
+        slam = self.slam
         newest = batch[-1][0]
         for t, frame, w2c in batch:
-            if t == newest or is_keyframe_time(t, slam.total_frames, every):
+            if t == newest or slam.is_keyframe(t):
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned

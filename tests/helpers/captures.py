@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from splat_core.camera import Intrinsics, c2w_opengl_to_opencv, rotmat_to_quat
-from fixture_scene import (HOLE, MARK, MEDIUM, Fixture, Sequence, _rot, camera_path, make_intrinsics,  # noqa: F401
+from .scene import (HOLE, MARK, MEDIUM, Fixture, Sequence, _rot, camera_path, make_intrinsics,  # noqa: F401
                            make_sequence, render_rays)
 
 

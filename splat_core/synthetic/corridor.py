@@ -1,12 +1,12 @@
 """A long synthetic capture that keeps exploring: a walk down a 40 m corridor (benchmarks/long_run.py).
 
-The room scene (synthetic.py) is revisited over and over; this one is not: the camera walks down
+The room scene (scene.py) is revisited over and over; this one is not: the camera walks down
 the corridor at hand-held speed (1.5 cm per frame: 1,000 frames cover 15 m), panning from side to
 side, so new walls and objects keep entering the view while earlier ones leave it, and the map
 grows with the run as a house or a corridor scan does. Depth beyond `max_depth` (default 5 m,
 like a phone's or a Kinect's range) is invalid, so what is seen is near the camera.
 
-World frame as in synthetic.py (y down); the corridor runs along +x: x in [-1, 40], y in
+World frame as in scene.py (y down); the corridor runs along +x: x in [-1, 40], y in
 [-1.5, 1.5], z in [-1.5, 1.5]. Boxes and spheres stand along both walls every 1.5-2.5 m.
 """
 
@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .synthetic import Box, Sphere, SyntheticScene, SyntheticSource, look_at_c2w
+from .paths import look_at_c2w
+from .scene import Box, Sphere, SyntheticScene
+from .source import SyntheticSource
 
 LENGTH = 40.0
 CORRIDOR_MIN = np.array([-1.0, -1.5, -1.5])

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from .parallel import numba_lock
+from ..parallel import numba_lock
 from .ssim_cpu import ssim_grad_np, ssim_np
 
 

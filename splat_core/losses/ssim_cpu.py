@@ -46,7 +46,8 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from .parallel import numba_lock
+from ..parallel import numba_lock
+from ._torch_impl import gaussian_window_1d
 
 WIN = 11            # taps (a compile-time constant in the kernels: the tap loops unroll)
 HALF = WIN // 2     # zero padding on each side
@@ -228,8 +229,7 @@ def _backward_kernel(x, y, d_mu, d_xx, d_xy, C, g, consts, hbuf, out):
 # ----------------------------------------------------------------------------- driver
 
 def _taps(dtype) -> np.ndarray:
-    """The 1D window exactly as `losses.gaussian_window_1d` makes it, in the working dtype."""
-    from .losses import gaussian_window_1d
+    """The 1D window exactly as `losses._torch_impl.gaussian_window_1d` makes it, in the working dtype."""
     tdt = torch.float64 if dtype == np.float64 else torch.float32
     return np.ascontiguousarray(gaussian_window_1d(WIN, dtype=tdt).numpy())
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import re
 
-from .errors import InputError
+from ..errors import InputError
 
 
 def parse_resolution(text: str, where: str = "--resolution"):

@@ -10,8 +10,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .io.common import IndexedCapture
-from .synthetic import FPS, SyntheticScene, add_depth_noise, camera_path, default_intrinsics
+from ..io.common import IndexedCapture
+from .paths import camera_path, default_intrinsics
+from .scene import FPS, SyntheticScene
+from .source import add_depth_noise
 
 
 class SyntheticPhoneCapture(IndexedCapture):

@@ -1,0 +1,262 @@
+"""The pipeline around the algorithm: frames in, the engine, checkpoints, evaluation, the run folder.
+
+    pipe = Pipeline(open_input(path), load_config("cpu"), out_dir=Path("run"))
+    while pipe.step() is not None: ...
+    metrics = pipe.finish()
+
+Used by `splatam run` (with a progress bar) and by the viewer's worker thread (one step at a
+time, so it can pause). `step` reads a frame from the feed, hands it to the engine (sequential or
+live: one interface, engines.py) and records what happened; `finish` evaluates and writes the
+run folder (run_folder.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from ..camera import Intrinsics, invert_pose, is_finite_pose
+from ..config import Config
+from ..errors import InputError
+from ..frame import Frame
+from ..io.source import FrameSource
+from ..keyframes import Keyframe
+from ..memory import release_free_memory
+from ..slam import FrameResult, MapVersion, SplaTAM
+from .engines import ENGINES, make_engine
+from .frame_feed import FrameFeed, input_record, resolve_device
+from .report import ate_cm, evaluate, summary
+from .resolution import source_working_size
+from .run_folder import RunFolder
+
+RELEASE_MEMORY_EVERY = 10      # frames between returns of freed heap memory to the system (memory.py)
+
+
+class SlamRun(Protocol):
+    """What the app (the worker thread, `splatam run`) may use of a run: nothing else.
+
+    `step()` and `finish()` are called by one thread only; `map_version()`, `keyframes()` and the
+    trajectory getters may be read between steps by that thread (the live engine's versions are
+    safe to read from any thread)."""
+
+    total: int | None           # frames to process (None: a live stream of unknown length)
+    out_dir: Path | None
+    config: Config
+    intrinsics: Intrinsics      # working resolution
+    records: list[dict]         # per processed frame: wall_seconds, tracking_loss, ...
+    skipped: list[dict]         # bad frames skipped: source_index, reason
+    lost: list[dict]            # frames where tracking was lost (pose held, not mapped): index, source_index, reason
+
+    def step(self) -> FrameResult | None: ...
+    def finish(self) -> dict: ...
+    def map_version(self) -> MapVersion: ...
+    def keyframes(self) -> list[Keyframe]: ...
+    def estimated_c2w(self) -> list[np.ndarray]: ...
+    def reference_c2w(self) -> list[np.ndarray | None] | None: ...
+    def ate_cm(self) -> float | None: ...
+
+
+class Pipeline:
+    def __init__(self, source: FrameSource, config: Config, out_dir=None, *, device="auto",
+                 max_frames: int | None = None, stride: int = 1, resume: bool = False,
+                 engine: str = "sequential"):
+        if stride < 1:
+            raise InputError(f"--stride {stride}: expected a positive integer")
+        if engine not in ENGINES:
+            raise InputError(f"--engine {engine}: expected one of {', '.join(ENGINES)}")
+        self.engine_name = engine
+        self.notes: list[str] = []             # adjustments made for this input, shown by the CLI
+        if not source.registered and (config.tracking.color_weight or config.tracking.align_color_weight):
+            # Colour a few pixels off the depth pulls the pose away from where the depth puts it
+            # (7-Scenes: 4.0-4.5 cm ATE with colour, 2.5 cm without; docs/benchmarks.md).
+            config = dataclasses.replace(config, tracking=dataclasses.replace(
+                config.tracking, color_weight=0.0, align_color_weight=0.0))
+            self.notes.append("colour and depth are not registered (camera file): tracking uses depth alone")
+        self.source, self.config = source, config
+        self.folder = RunFolder(out_dir) if out_dir is not None else None
+        self.device = resolve_device(device)
+        if getattr(source, "live", False) and (stride != 1 or resume):
+            raise InputError("--stride and --resume do not apply to a live stream (rerun its capture folder instead)")
+        # The preset's resolution on this capture's shape (aspect kept; resolution.py).
+        self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
+        self.feed = FrameFeed(source, self.intrinsics, config, max_frames=max_frames, stride=stride)
+        self.slam = SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total)
+        self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
+        self.references: list[np.ndarray | None] = []
+        self.started = time.perf_counter()
+        self._last_step = None
+        if resume and self.folder is not None and not self.folder.has_checkpoint():
+            self.warn(f"{self.folder.checkpoint_dir}: no checkpoint written yet; starting from the first frame")
+            resume = False
+        if resume:
+            self._resume()
+        elif self.folder is not None:
+            self.slam.keyframes.attach(self.folder.keyframe_file)
+        self.engine = make_engine(engine, self.slam, config)
+
+    # ------------------------------------------------------------------ what the feed knows
+    out_dir = property(lambda self: self.folder.path if self.folder is not None else None)
+    total = property(lambda self: self.feed.total)
+    indices = property(lambda self: self.feed.indices)
+    cursor = property(lambda self: self.feed.cursor)
+    skipped = property(lambda self: self.feed.skipped)
+    streaming = property(lambda self: self.feed.streaming)
+
+    @property
+    def warn(self):
+        return self.feed.warn
+
+    @warn.setter
+    def warn(self, function) -> None:
+        self.feed.warn = function
+
+    def keyframes(self) -> list[Keyframe]:
+        return list(self.slam.keyframes)
+
+    def map_version(self) -> MapVersion:
+        """The newest map that may be read from any thread."""
+        return self.engine.map_version()
+
+    def frame(self, k: int) -> Frame:
+        """Processed frame k at the working resolution, depth cut at max_depth."""
+        return self.frame_at(int(self.records[k]["source_index"]))
+
+    def frame_at(self, i: int, raw: Frame | None = None) -> Frame:
+        return self.feed.frame_at(i, raw)
+
+    # ------------------------------------------------------------------ one frame
+    def step(self) -> FrameResult | None:
+        k = len(self.records)
+        frame = self.feed.next(started=bool(self.records), check=self._check_reference)
+        if frame is None:
+            return None
+        given = None
+        if self.config.tracking.use_reference_poses:
+            given = invert_pose(self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0]))
+        result = self.engine.process(frame, given)
+        result.frame = frame
+        now = time.perf_counter()   # wall time since the last frame (the first: its own processing)
+        wall = now - self._last_step if self._last_step is not None else \
+            result.tracking_seconds + result.mapping_seconds
+        self._last_step = now
+        self.references.append(frame.c2w_ref)
+        self.records.append(dict(
+            index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall,
+            tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
+            tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
+            num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
+            is_keyframe=result.is_keyframe, lost=result.lost))
+        self._report_lost(result)
+        if (k + 1) % RELEASE_MEMORY_EVERY == 0:
+            release_free_memory()
+        every = self.config.checkpoint_every
+        if self.folder is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
+            self.save_checkpoint()
+        return result
+
+    def _check_reference(self, frame: Frame, i: int) -> None:
+        if self.config.tracking.use_reference_poses and not (
+                is_finite_pose(frame.c2w_ref) and (not self.references or is_finite_pose(self.references[0]))):
+            raise InputError(f"{self.feed.where} frame {i}: no finite reference pose (tracking.use_reference_poses)")
+
+    @property
+    def lost(self) -> list[dict]:
+        return [dict(index=r["index"], source_index=r["source_index"], reason=r["lost"])
+                for r in self.records if r.get("lost")]
+
+    def _report_lost(self, result: FrameResult) -> None:
+        """One warning when tracking is lost and one when it is back (not one per lost frame)."""
+        before = self.records[-2].get("lost") if len(self.records) > 1 else None
+        if result.lost and not before:
+            self.warn(f"tracking lost at frame {result.index} (capture frame {result.source_index}): {result.lost}; "
+                      "relocalising against the keyframes (lost frames are not mapped)")
+        elif before and not result.lost:
+            run = next((k for k in range(len(self.records) - 2, -1, -1) if not self.records[k].get("lost")), -1)
+            self.warn(f"tracking recovered at frame {result.index} after {len(self.records) - 2 - run} lost frame(s)")
+
+    # ------------------------------------------------------------------ trajectories
+    @staticmethod
+    def _reference_world(c2w_ref, c2w_ref0):
+        if not (is_finite_pose(c2w_ref) and is_finite_pose(c2w_ref0)):
+            return None
+        return invert_pose(c2w_ref0) @ c2w_ref
+
+    def estimated_c2w(self) -> list[np.ndarray]:
+        return [invert_pose(w) for w in self.slam.w2cs]
+
+    def has_reference(self) -> bool:
+        return any(is_finite_pose(r) for r in self.references)
+
+    def reference_c2w(self) -> list[np.ndarray | None] | None:
+        """Reference poses in the SLAM world (first frame's camera), or None without any."""
+        if not self.has_reference():
+            return None
+        return [self._reference_world(r, self.references[0]) for r in self.references]
+
+    def ate_cm(self) -> float | None:
+        return ate_cm(self.estimated_c2w(), self.reference_c2w())
+
+    # ------------------------------------------------------------------ checkpoints
+    def _meta(self) -> dict:
+        return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine_name,
+                    cursor=self.cursor, skipped=self.skipped, lost_tracking=self.slam.lost_tracking.state(),
+                    records=self.records, references=[None if r is None else np.asarray(r).tolist()
+                                                      for r in self.references],
+                    config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
+                    input=input_record(self.source), elapsed_seconds=time.perf_counter() - self.started)
+
+    def save_checkpoint(self) -> None:
+        self.engine.drain()           # a consistent state: every tracked frame is in the map
+        self.folder.save_checkpoint(self.slam.state_arrays(), self._meta())
+
+    def _resume(self) -> None:
+        ckpt = self.folder.load_checkpoint()
+        where = self.folder.path
+        if ckpt.meta.get("indices") != self.indices:
+            raise InputError(f"{where}: the checkpoint was made with other frames "
+                             "(--input/--stride/--max-frames must match the original run)")
+        if ckpt.meta.get("config") != self.config.to_dict():
+            raise InputError(f"{where}: the checkpoint was made with another config")
+        if ckpt.meta.get("engine", "sequential") != self.engine_name:
+            raise InputError(f"{where}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
+        self.slam.load_state_arrays(ckpt.arrays, self.folder.keyframe_file)
+        self.records = list(ckpt.meta["records"])
+        self.feed.load_state(ckpt.meta, len(self.records))
+        if "lost_tracking" in ckpt.meta:
+            self.slam.lost_tracking.load_state(ckpt.meta["lost_tracking"])
+        self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
+        self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
+
+    # ------------------------------------------------------------------ results
+    def evaluate(self) -> dict:
+        """Render metrics at the estimated poses on frame 0 and every eval_every-th frame."""
+        return evaluate(self.slam, self.records, self.frame, self.config.eval_every)
+
+    def metrics(self) -> dict:
+        out = summary(self)
+        out.update(self.engine.stats())
+        out.update(self.evaluate())
+        out["per_frame"] = self.records
+        return out
+
+    def finish(self) -> dict:
+        """Compute metrics and write the run folder (each file atomically)."""
+        self.engine.drain()
+        self.engine.close()
+        # Time to the end of mapping counts: the live engine's last frames are mapped only now.
+        if self.records and self._last_step is not None:
+            self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
+            self._last_step = None
+        result = self.metrics()
+        if self.folder is not None:
+            comments = {r["index"]: f"tracking lost at frame {r['index']} (capture frame {r['source_index']}): "
+                        f"{r['reason']}; the pose below is not tracked (interpolated between the tracked frames on "
+                        "either side, or held at the last tracked pose when the run ended lost)" for r in self.lost}
+            self.folder.write_results([r["timestamp"] for r in self.records], self.estimated_c2w(),
+                                      self.slam.map.to_numpy(), self.config.to_dict(), result, comments=comments)
+            self.save_checkpoint()
+        return result
