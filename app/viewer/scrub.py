@@ -13,8 +13,8 @@ Going to a keyframe, for that page only:
 - the keyframe frustums with their images (which would fill the view from a keyframe's pose)
   are hidden and drawn as faint outlines instead, still clickable; the one at the keyframe is left out,
 - the camera flies to the keyframe's pose, and the panel shows the captured image beside our
-  render of the map at that keyframe from that pose (cached per (keyframe, map version), so ten
-  visitors on the same keyframe cost one render).
+  render of the map at that keyframe from that pose (cached per (keyframe, run state), so ten
+  visitors on the same keyframe cost one render, and a growing map does not re-render it).
 Other pages are untouched: a new page follows the latest map, whatever another visitor scrubbed to.
 """
 
@@ -256,7 +256,9 @@ class KeyframeScrubber:
 
     # ------------------------------------------------------------------ the panel
     def _show_panel(self, page: ClientScrub, pos: int, snap: MapSnapshot) -> None:
-        key = (pos, snap.keyframes[pos].frame_index, snap.map_version)
+        # not per map version: a render per snapshot would take the CPU SLAM needs; a new keyframe,
+        # or the run pausing / ending, re-renders (one render for every page on the same key)
+        key = (pos, snap.keyframes[pos].frame_index, snap.state)
         if page.shown_key == key:
             return
         page.shown_key = key
