@@ -1,19 +1,23 @@
 """Many viewers and a stalled one: what they cost SLAM and the server's memory (loopback only).
 
-    python benchmarks/viewer_clients.py [--json] [--frames 24] [--clients 10] [--stall-seconds 60]
+    python benchmarks/viewer_clients.py [--json] [--frames 24] [--clients 10] [--repeats 2] [--engine sequential|live]
+                                        [--stall-seconds 60] [--skip-rate]
     python benchmarks/viewer_clients.py --first-page [--first-page-timeout 30]
 
 Clients are websocket clients that read everything the server sends but draw nothing (no browser):
 each sends one camera message, as a page does, so the viewer builds its per-page panels for it.
 
-- rate: SLAM (the real pipeline, cpu preset, live engine, synthetic scene) in the viewer with 1
-  reading client, then with --clients reading clients; the median wall-clock s/frame of each (frame 0
-  left out) and `ratio` = fps with many / fps with one (target >= 0.9).
+- rate: SLAM (the real pipeline, cpu preset, --engine, synthetic scene) in the viewer with 1
+  reading client, then with --clients reading clients, alternating --repeats times after a short
+  warm-up run; the median wall-clock s/frame of each run (frame 0 left out) and `ratio` = fps with
+  many / fps with one over the medians (target >= 0.9).
 - stall: SLAM in the viewer with one reading client and one client that completes the handshake,
   sends its camera message and then never reads again; the server process's resident memory (VmRSS)
   when the stall begins and --stall-seconds later, while SLAM keeps publishing (target < 50 MB growth).
-  `stalled_disconnected` says whether the server dropped the stalled client meanwhile (websockets'
-  keepalive pings go unanswered by a client that does not read).
+  `stalled_disconnected` says whether the server dropped the stalled client meanwhile; while it is
+  connected, what the server holds for it: bytes waiting in its socket's write buffer, messages in
+  its own queue, and how far it lags in the shared broadcast buffer (whose size is the scene's, newer
+  updates of a node replacing older ones, whoever has not read them).
 - first page (--first-page): `splatam-viewer` started as a fresh clone would run it (an empty Numba
   cache: NUMBA_CACHE_DIR in a temporary folder, so the kernels compile), then the seconds from the URL
   answering until headless Chromium shows the first frame's images and the status line. Target < 10 s.
@@ -105,7 +109,8 @@ def stalled_client(port: int):
     return sock
 
 
-def viewer_run(frames: int, *, readers: int, stall_seconds: float = 0.0, config: str = "cpu") -> dict:
+def viewer_run(frames: int, *, readers: int, stall_seconds: float = 0.0, config: str = "cpu",
+               engine: str = "live") -> dict:
     """SLAM in the viewer with `readers` reading clients (and a stalled one when stall_seconds > 0)."""
     import viser
 
@@ -115,8 +120,8 @@ def viewer_run(frames: int, *, readers: int, stall_seconds: float = 0.0, config:
     from splat_core.run import Pipeline, open_input
 
     n = frames if not stall_seconds else 10_000
-    pipe = Pipeline(open_input(None, n_frames=max(n, 60) if stall_seconds else None), load_config(config), None,
-                    max_frames=n, engine="live")
+    source = open_input(None, n_frames=600) if stall_seconds else open_input(None)
+    pipe = Pipeline(source, load_config(config), None, max_frames=n, engine=engine)
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     worker = SlamWorker(pipe, start_paused=True)
     app = build_viewer(server, worker)
@@ -137,7 +142,17 @@ def viewer_run(frames: int, *, readers: int, stall_seconds: float = 0.0, config:
                 time.sleep(1.0)
                 peak = max(peak, rss_mb())
             after = rss_mb()
-            live = len(server._websock_server._live_connections)  # noqa: SLF001
+            ws_server = server._websock_server  # noqa: SLF001 - what the server holds for the stalled client
+            live = len(ws_server._live_connections)  # noqa: SLF001
+            stalled_id = max(ws_server._live_connections, default=None)  # noqa: SLF001 (the newest)
+            if stalled_id is not None and live > readers:
+                conn = ws_server._live_connections[stalled_id]  # noqa: SLF001
+                state = ws_server._client_state_from_id.get(stalled_id)  # noqa: SLF001
+                out["stalled_write_buffer_mb"] = round(conn.transport.get_write_buffer_size() / 2**20, 2)
+                out["stalled_pending_messages"] = len(state.message_buffer.message_from_id) if state else 0
+                cursor = ws_server._broadcast_buffer.generator_cursors.get(stalled_id, -1)  # noqa: SLF001
+                out["stalled_broadcast_lag_messages"] = ws_server._broadcast_buffer.message_counter - 1 - cursor  # noqa: SLF001
+                out["broadcast_buffer_messages"] = len(ws_server._broadcast_buffer.message_from_id)  # noqa: SLF001
             out.update(rss_before_mb=round(before, 1), rss_after_mb=round(after, 1), rss_peak_mb=round(peak, 1),
                        growth_mb=round(after - before, 1), peak_growth_mb=round(peak - before, 1),
                        stall_seconds=stall_seconds, frames_during_stall=worker.latest().processed - frames_at_start,
@@ -217,6 +232,9 @@ def main() -> int:
     ap.add_argument("--clients", type=int, default=10)
     ap.add_argument("--stall-seconds", type=float, default=60.0, help="0: skip the stalled-client part")
     ap.add_argument("--skip-rate", action="store_true")
+    ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--engine", default="sequential", choices=("sequential", "live"),
+                    help="the rate runs' engine (sequential: a frame's time includes its mapping)")
     ap.add_argument("--first-page", action="store_true", help="only the fresh-clone first-page measurement")
     ap.add_argument("--first-page-timeout", type=float, default=60.0)
     args = ap.parse_args()
@@ -225,10 +243,17 @@ def main() -> int:
         result["first_page"] = first_page(args.first_page_timeout)
     else:
         if not args.skip_rate:
-            one = viewer_run(args.frames, readers=1)
-            many = viewer_run(args.frames, readers=args.clients)
-            result["rate"] = {"one_client": one, "many_clients": many,
-                              "ratio": round(one["s_per_frame"] / many["s_per_frame"], 3)}
+            viewer_run(4, readers=0, engine=args.engine)    # warm-up: kernels compiled and loaded
+            ones, manys = [], []
+            for _ in range(args.repeats):                   # alternate, so drift hits both alike
+                ones.append(viewer_run(args.frames, readers=1, engine=args.engine))
+                manys.append(viewer_run(args.frames, readers=args.clients, engine=args.engine))
+            one = statistics.median(r["s_per_frame"] for r in ones)
+            many = statistics.median(r["s_per_frame"] for r in manys)
+            result["rate"] = {"one_client_s_per_frame": [round(r["s_per_frame"], 3) for r in ones],
+                              "many_clients_s_per_frame": [round(r["s_per_frame"], 3) for r in manys],
+                              "clients": args.clients, "engine": args.engine, "bytes_read_per_client": manys[-1]["bytes_read_per_client"],
+                              "ratio": round(one / many, 3)}
         if args.stall_seconds:
             result["stall"] = viewer_run(args.frames, readers=1, stall_seconds=args.stall_seconds)
     print(json.dumps(result, indent=None if args.json else 2))
