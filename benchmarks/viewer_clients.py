@@ -208,8 +208,7 @@ def first_page(timeout: float) -> dict:
                 page = browser.new_page(viewport={"width": 1000, "height": 800})
                 page.goto(url)
                 page.wait_for_function("() => document.body.innerText.includes('Frame #0')"
-                                       " && document.body.innerText.includes('Processing frame 1')"
-                                       " || document.body.innerText.includes('Frame 1 /')",
+                                       " && document.body.innerText.includes('Processing frame')",
                                        timeout=timeout * 1000)
                 shown = time.monotonic()
                 body = page.evaluate("() => document.body.innerText")
@@ -222,6 +221,7 @@ def first_page(timeout: float) -> dict:
                 proc.kill()
     return {"seconds_to_url": round(answered - started, 2), "seconds_url_to_page": round(shown - answered, 2),
             "compile_note_shown": "compiling the CPU renderer: first run only" in body,
+            "status_text": body[body.find("Processing"):][:160],
             "terminal_note": any("compiling the CPU renderer" in x for x in lines)}
 
 

@@ -34,7 +34,7 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
         if snap.ate_cm is not None:
             lines.append(f"ATE: {snap.ate_cm:.2f} cm")
         return "  \n".join(lines)
-    if snap.state in ("starting", "running") and snap.processed == 0:
+    if snap.state in ("starting", "running") and snap.num_gaussians == 0:   # no map yet (live: mapping lags)
         return "  \n".join(first_frame_lines(snap, first_note))
     spf = f"{snap.seconds_per_frame:.2f} s/frame" if snap.seconds_per_frame is not None else "– s/frame"
     ate = f"{snap.ate_cm:.2f} cm" if snap.ate_cm is not None else "n/a (no reference poses)"
@@ -65,7 +65,7 @@ STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused (
 
 def first_frame_lines(snap: MapSnapshot, first_note: str | None = None) -> list[str]:
     """What the page says before the first frame is done (it takes a minute on a first run)."""
-    lines = [f"**Processing frame 1 / {snap.total_frames or '…'}** · {snap.state}"]
+    lines = [f"**Processing frame {max(snap.processed, 1)} / {snap.total_frames or '…'}** · {snap.state}"]
     if first_note:
         lines.append(f"⏳ {first_note}")
     lines.append(snap.message or "the first frame builds the map from scratch; the 3D view fills in after it")
