@@ -27,6 +27,7 @@ Each part stops by itself (a bounded number of frames or seconds).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
@@ -239,6 +240,13 @@ def main() -> int:
     ap.add_argument("--first-page-timeout", type=float, default=60.0)
     args = ap.parse_args()
     result = {"machine": machine(), "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:])}
+    with contextlib.redirect_stdout(sys.stderr):      # viser's banners: stdout stays one JSON document
+        measure(args, result)
+    print(json.dumps(result, indent=None if args.json else 2))
+    return 0
+
+
+def measure(args, result: dict) -> None:
     if args.first_page:
         result["first_page"] = first_page(args.first_page_timeout)
     else:
@@ -256,8 +264,6 @@ def main() -> int:
                               "ratio": round(one / many, 3)}
         if args.stall_seconds:
             result["stall"] = viewer_run(args.frames, readers=1, stall_seconds=args.stall_seconds)
-    print(json.dumps(result, indent=None if args.json else 2))
-    return 0
 
 
 if __name__ == "__main__":
