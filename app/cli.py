@@ -22,7 +22,8 @@ SUBCOMMANDS = {
     "capture": ("app.commands.capture", "record the NeRFCapture iPhone app's live stream as a capture folder"),
     "info": ("app.commands.info", "describe a capture: format, frames, intrinsics, depth, poses"),
     "convert": ("app.commands.convert", "convert any supported capture to the TUM RGB-D layout"),
-    "export": ("app.commands.export", "export a run's map as .ply, .splat, .spz, compressed .ply or .html"),
+    "export": ("app.commands.export", "export a run's map (.ply, .splat, .spz, compressed .ply, .html), "
+               "or hand it off: a COLMAP model, a nerfstudio dataset, a mesh"),
     "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
     "refine": ("app.commands.refine", "refine a finished run's map over all keyframes at the capture's resolution"),
 }

@@ -51,8 +51,8 @@ def ctrl_c_ends(stream, what: str):
 def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
     """The options `splatam run` and `splatam-viewer` share."""
     p.add_argument("--format", default=None, help="capture format (default: detected)")
-    p.add_argument("--config", default=None, help="budget preset (cpu, cpu_dense, splatam, splatam_s), paper preset "
-                   "(splatam_tum, ...), names joined by '+' or a YAML file (default: cpu on a CPU, splatam on a GPU); "
+    p.add_argument("--config", default=None, help="budget preset (cpu, cpu_dense, gpu, splatam, splatam_s), paper preset "
+                   "(splatam_tum, ...), names joined by '+' or a YAML file (default: cpu on a CPU, gpu on a GPU); "
                    "the detected format's layer applies by itself")
     p.add_argument("--resolution", default=None, metavar="WxH|L|native",
                    help="working resolution: WxH pixels in the capture's aspect ratio (portrait stays portrait), "
@@ -70,7 +70,8 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
 
 
 def default_config_name(device) -> str:
-    return "splatam" if device.type == "cuda" else "cpu"
+    """The budget `--device auto` gives: `gpu` on CUDA (configs/gpu.yaml), `cpu` elsewhere."""
+    return "gpu" if device.type == "cuda" else "cpu"
 
 
 def input_format(input_path, format: str | None) -> str:

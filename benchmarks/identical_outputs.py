@@ -1,8 +1,8 @@
 """Is a change behaviour-neutral? Runs two checkouts side by side and compares their run folders.
 
-    git worktree add /tmp/before <commit before the change>
-    python benchmarks/identical_outputs.py --before /tmp/before            # synthetic + the real sequences
-    python benchmarks/identical_outputs.py --before /tmp/before --sequences synthetic --max-frames 20
+    git worktree add ../before <commit before the change>
+    python benchmarks/identical_outputs.py --before ../before              # synthetic + the real sequences
+    python benchmarks/identical_outputs.py --before ../before --sequences synthetic --max-frames 20
 
 Each sequence is run by both checkouts with the sequential engine (deterministic) and the given
 preset (default cpu), one `splatam run` process each (benchmarks/slam.py's run_one), and the

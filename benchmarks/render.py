@@ -22,7 +22,7 @@ from __future__ import annotations
 import os
 
 # Torch and Numba each bring an OpenMP runtime; spinning idle threads of one steal the cores of the
-# other (cpu_rasterizer_notes.md). Must be set before either is imported.
+# other (docs/renderer.md). Must be set before either is imported.
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import argparse  # noqa: E402

@@ -113,7 +113,7 @@ def main() -> None:
                 results.append({"sequence": seq, "skipped": f"{path} not found"})
                 continue
             src = open_capture(path)
-            checks[seq] = (src, reference_breaks(src))    # README "7-Scenes' reference"
+            checks[seq] = (src, reference_breaks(src))    # docs/benchmarks.md, Accuracy (7-Scenes' reference)
         for entry in args.presets.split(","):
             preset, _, rest = entry.partition("@")
             engine_of_entry, _, checkout = rest.partition("@")

@@ -1,6 +1,6 @@
 """Cameras: intrinsics, pose <-> quaternion, constant-velocity prediction.
 
-Conventions (DESIGN.md §3), stated once here:
+Conventions (docs/design.md, Conventions), stated once here:
 - Camera axes are OpenCV: +x right, +y down, +z forward.
 - Pixel centres sit at integer image coordinates: pixel (u, v) (column u, row v) is the point
   x = u, y = v, and a camera point (X, Y, Z) projects to (fx X/Z + cx, fy Y/Z + cy). So a
@@ -112,7 +112,8 @@ def quat_multiply(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 def w2c_from_quat_trans(q: torch.Tensor, t: torch.Tensor) -> torch.Tensor:
     """Differentiable 4x4 world-to-camera matrix from a quaternion (4,) and a translation (3,)."""
     top = torch.cat([quat_to_rotmat(q), t.reshape(3, 1)], dim=1)
-    bottom = torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=top.dtype, device=top.device)
+    bottom = torch.zeros(1, 4, dtype=top.dtype, device=top.device)
+    bottom[0, 3] = 1.0                  # a fill on the device: no host-to-device copy per call
     return torch.cat([top, bottom], dim=0)
 
 
@@ -166,7 +167,7 @@ OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
 def c2w_opengl_to_opencv(c2w_gl: np.ndarray) -> np.ndarray:
-    """Camera axes x right, y up, z backward (OpenGL/ARKit) -> OpenCV (formats.md)."""
+    """Camera axes x right, y up, z backward (OpenGL/ARKit) -> OpenCV (docs/formats.md)."""
     return np.asarray(c2w_gl, dtype=np.float64) @ OPENGL_TO_OPENCV
 
 

@@ -7,7 +7,7 @@
     load_config("cpu+record3d")             a format layer named explicitly (replaces the detected one)
     load_config("my.yaml")                  any file; it may name `base: splatam` to start from a preset
 
-Budgets (configs/*.yaml: cpu, cpu_dense, splatam, splatam_s) set iterations, learning rates,
+Budgets (configs/*.yaml: cpu, cpu_dense, gpu, splatam, splatam_s) set iterations, learning rates,
 resolution and window. Format layers (configs/formats/<format>.yaml, one per capture format,
 applied by themselves for the detected format) may set only FORMAT_KEYS: depth range, confidence,
 depth upsampling, keyframe rules. The layer is applied first, so a budget's iteration counts hold
@@ -30,6 +30,22 @@ CONFIG_DIR = next((d for d in (Path(__file__).resolve().parent / "presets",
                   Path(__file__).resolve().parent.parent / "configs")
 
 
+ALIGN_BACKENDS = ("auto", "numba", "torch")
+
+
+@dataclass
+class AlignConfig:
+    """tracking.align: the Gauss-Newton pre-alignment to the rendered map (direct_align.py)."""
+    iterations: int = 0                   # per pyramid level; 0 = off
+    levels: int = 3                       # pyramid levels
+    passes: int = 1                       # renders (re-linearisations)
+    color_weight: float = 1.0             # photometric term's weight against point-to-plane depth
+    depth_noise: bool = False             # divide its depth residuals by a structured-light noise model sigma(z)
+    stride: int = 1                       # every n-th live pixel (x and y) at full resolution ...
+    min_points: int = 4096                # ... but a smaller stride where that would leave fewer pixels
+    backend: str = "auto"                 # numba (CPU, direct_align.py) | torch (the map's device, direct_align_torch.py) | auto: torch on CUDA, else numba
+
+
 @dataclass
 class TrackingConfig:
     iterations: int = 40
@@ -46,13 +62,7 @@ class TrackingConfig:
     compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot
     early_stop_tolerance: float = 0.0     # stop when the pose update is below this (m / rad); 0 = never
     outlier_factor: float | None = None   # drop pixels whose depth error exceeds this x the median error
-    align_iterations: int = 0             # Gauss-Newton pre-alignment to the rendered map (direct_align.py), per level; 0 = off
-    align_levels: int = 3                 # pyramid levels of that alignment
-    align_passes: int = 1                 # renders (re-linearisations) of that alignment
-    align_color_weight: float = 1.0       # photometric term's weight against point-to-plane depth
-    align_depth_noise: bool = False       # divide its depth residuals by a structured-light noise model sigma(z)
-    align_stride: int = 1                 # that alignment uses every n-th live pixel (x and y) at full resolution
-    align_min_points: int = 4096          # ... but a smaller stride where that would leave fewer pixels
+    align: AlignConfig = field(default_factory=AlignConfig)   # Gauss-Newton pre-alignment (tracking.align.*)
     pixels: str = "all"                   # pixels of the tracking loss: all | random | gradient | depth_edges (pixel_selection.py)
     pixel_tile: int = 8                   # ... chosen per pixel_tile x pixel_tile block
     pixels_per_tile: int = 1
@@ -145,13 +155,14 @@ class Config:
     def validate(self) -> "Config":
         checks = [
             (self.tracking.iterations >= 0, "tracking.iterations must be >= 0"),
-            (self.tracking.align_iterations >= 0, "tracking.align_iterations must be >= 0"),
+            (self.tracking.align.iterations >= 0, "tracking.align.iterations must be >= 0"),
+            (self.tracking.align.backend in ALIGN_BACKENDS, "tracking.align.backend must be auto, numba or torch"),
             (self.tracking.pixels in ("all", "random", "gradient", "depth_edges"),
              "tracking.pixels must be all, random, gradient or depth_edges"),
-            (self.tracking.pixel_tile >= 1 and self.tracking.pixels_per_tile >= 1 and self.tracking.align_stride >= 1,
-             "tracking.pixel_tile, tracking.pixels_per_tile and tracking.align_stride must be >= 1"),
-            (self.tracking.align_levels >= 1 and self.tracking.align_passes >= 1,
-             "tracking.align_levels and tracking.align_passes must be >= 1"),
+            (self.tracking.pixel_tile >= 1 and self.tracking.pixels_per_tile >= 1 and self.tracking.align.stride >= 1,
+             "tracking.pixel_tile, tracking.pixels_per_tile and tracking.align.stride must be >= 1"),
+            (self.tracking.align.levels >= 1 and self.tracking.align.passes >= 1,
+             "tracking.align.levels and tracking.align.passes must be >= 1"),
             (self.mapping.iterations >= 0, "mapping.iterations must be >= 0"),
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
             (0 < self.mapping.tile_fraction <= 1 and self.mapping.min_tiles >= 0,
@@ -189,10 +200,19 @@ def _valid_resolution(r) -> bool:
         isinstance(v, int) and not isinstance(v, bool) and v > 0 for v in r)
 
 
+# Keys that moved: (the dataclass they were in, old key) -> the new key (an error naming it).
+MOVED_KEYS = {(TrackingConfig, f"align_{k}"): f"tracking.align.{k}" for k in
+              ("iterations", "levels", "passes", "color_weight", "depth_noise", "stride", "min_points")}
+
+
 def _merge(target, values: dict, where: str):
     """Apply a nested dict onto a dataclass instance; unknown keys are errors."""
     names = {f.name: f for f in dataclasses.fields(target)}
     for key, value in values.items():
+        if (type(target), key) in MOVED_KEYS:
+            new = MOVED_KEYS[(type(target), key)]
+            raise InputError(f"{where}: config key tracking.{key} is now {new} (a nested section: "
+                             f"tracking: {{align: {{{new.rsplit('.', 1)[1]}: ...}}}})")
         if key not in names:
             raise InputError(f"{where}: unknown config key {key!r} (known: {', '.join(sorted(names))})")
         current = getattr(target, key)
@@ -319,7 +339,17 @@ def describe_layers(config: Config) -> str:
 
 
 def config_from_dict(data: dict) -> Config:
-    """Rebuild a resolved config (e.g. a run folder's config.yaml)."""
+    """Rebuild a resolved config (e.g. a run folder's config.yaml). A run folder written before
+    tracking.align was a section (flat tracking.align_* keys) is read with those keys moved."""
+    data = dict(data)
+    tracking = data.get("tracking")
+    if isinstance(tracking, dict):
+        tracking = dict(tracking)
+        moved = {new.rsplit(".", 1)[1]: tracking.pop(old) for (cls, old), new in MOVED_KEYS.items()
+                 if cls is TrackingConfig and old in tracking}
+        if moved:
+            tracking["align"] = {**tracking.get("align", {}), **moved}
+        data["tracking"] = tracking
     config = Config()
-    _merge(config, dict(data), "config")
+    _merge(config, data, "config")
     return config.validate()

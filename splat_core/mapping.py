@@ -25,6 +25,7 @@ import torch
 
 from .camera import Intrinsics
 from .config import MappingConfig
+from .device import to_device
 from .gaussians import PARAM_NAMES, GaussianMap
 from .losses import ssim
 from .render import Renderer, tile_grid, tile_pixels
@@ -121,16 +122,19 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
     sub = GaussianMap(*(m.params[n].detach()[index] for n in PARAM_NAMES), m.birth_frame[index.cpu()])
     optimizer = sub.adam(config.lrs)
 
-    loss_value = None
+    # The window's poses go to the device once, not once per iteration (to_device: no host sync).
+    w2cs = [to_device(view.w2c, sub.means.dtype, sub.device) for view in window]
+    last_loss = None
     for i in range(iterations):
-        view = window[int(rng.integers(len(window)))]
+        k = int(rng.integers(len(window)))
+        view = window[k]
         tiles, pixels = draw_tiles(intr, config.tile_fraction, rng, config.min_tiles)
-        out = renderer.render(sub, intr, view.w2c, tiles=tiles)
-        loss = mapping_loss(out, view, config, None if pixels is None else pixels.to(view.depth.device))
+        out = renderer.render(sub, intr, w2cs[k], tiles=tiles)
+        loss = mapping_loss(out, view, config, None if pixels is None else to_device(pixels, torch.bool, view.depth.device))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
-        loss_value = float(loss.detach())
+        last_loss = loss.detach()       # read once after the loop: no host sync per iteration
         # Pruning after the step (the original prunes before it and so drops that step's update).
         if 0 < i + 1 <= config.prune_until and (i + 1) % config.prune_every == 0:
             keep = prune_mask(sub, config, scene_radius)
@@ -145,4 +149,5 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
         for name in PARAM_NAMES:
             m.params[name].data[index] = sub.params[name].detach()
     m.prune(keep_all)
-    return {"pruned": removed, "loss": loss_value, "optimised": int(optimised.numel())}
+    return {"pruned": removed, "loss": None if last_loss is None else float(last_loss),
+            "optimised": int(optimised.numel())}

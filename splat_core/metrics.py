@@ -1,12 +1,13 @@
 """Evaluation: trajectory error (ATE), rendering quality (PSNR, SSIM), depth L1.
 
 Every function accepts numpy arrays or torch tensors and returns Python floats (or numpy
-arrays for per-frame values). Conventions (spec §5):
+arrays for per-frame values). Conventions (docs/differences.md has why the standard ATE):
 
 - `ate_rmse` is the standard number (TUM `evaluate_ate`, evo `ape --align`): camera centres,
   rigid alignment without scale, root-mean-square of the residuals.
 - `ate_mean_legacy` reproduces the official SplaTAM code's "ATE RMSE": translation columns of
-  the w2c matrices, ground truth aligned onto the estimate, MEAN of the errors (spec §5.1, §10.3).
+  the w2c matrices, ground truth aligned onto the estimate, MEAN of the errors (its evaluation
+  code; `ate_mean_legacy_cm` in metrics.json).
 - `psnr` is 20 log10(1 / sqrt(MSE)) on images in [0, 1], the prediction not clamped.
 """
 
@@ -98,7 +99,7 @@ def ate_rmse_segments(est_c2w, ref_c2w, breaks) -> float:
 
 
 def ate_mean_legacy(est_w2c, ref_w2c) -> float:
-    """The official SplaTAM code's "ATE RMSE" (spec §5.1), metres: the translation COLUMNS of the
+    """The official SplaTAM code's "ATE RMSE" (its evaluation code), metres: the translation COLUMNS of the
     w2c matrices (not camera centres), the reference aligned onto the estimate (rigid, no scale),
     then the MEAN of the per-frame errors. Frames with non-finite reference poses are skipped.
     Since a w2c translation is -R^T c, this number is NOT invariant to translating the world
@@ -160,7 +161,7 @@ def psnr(pred, target, mask=None) -> float:
 
 def ssim_metric(pred, target) -> float:
     """Mean SSIM (losses.ssim: 11x11 Gaussian window, sigma 1.5) of two H x W x C images.
-    Not the MS-SSIM that the original paper's tables report (spec §10.4)."""
+    Not the MS-SSIM that the original paper's tables report."""
     from .losses import ssim
 
     p, t = _torch(pred), _torch(target)

@@ -1,4 +1,5 @@
-"""Numba's parallel runtime from several threads (DESIGN.md §4), and splitting the cores between them.
+"""Numba's parallel runtime from several threads (docs/design.md, the renderer contract), and
+splitting the cores between them.
 
 Numba's "workqueue" threading layer must not be entered from two threads at once; its "omp" and
 "tbb" layers are thread-safe (Numba's documentation on threading layers). Every Numba-parallel

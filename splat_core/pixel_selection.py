@@ -9,7 +9,7 @@ Rules (tracking.pixels):
     gradient     the `per_tile` pixels with the strongest grey-level gradient in each block
     depth_edges  the `per_tile` pixels with the strongest depth gradient in each block
 Only pixels with valid depth are chosen (the tracking loss ignores the others); a block without
-any contributes nothing. README "Accuracy and speed" has what each rule measured.
+any contributes nothing. docs/history/2026-12-01-sparse-pixel-tracking.md has what each rule measured.
 """
 
 from __future__ import annotations

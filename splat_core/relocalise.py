@@ -90,8 +90,9 @@ class LostTracking:
     def __init__(self, config: LostTrackingConfig, tracker: Tracker):
         self.config = config
         tc = tracker.config
-        search = dataclasses.replace(tc, align_iterations=max(tc.align_iterations, config.align_iterations),
-                                     align_passes=max(tc.align_passes, config.align_passes))
+        search = dataclasses.replace(tc, align=dataclasses.replace(
+            tc.align, iterations=max(tc.align.iterations, config.align_iterations),
+            passes=max(tc.align.passes, config.align_passes)))
         # The tracker again, with a wider reach (more alignment passes); it shares the tracker's pixel
         # choice (one random stream, checkpointed with the tracker).
         self.tracker = Tracker(search, tracker.intrinsics, tracker.renderer, device=tracker.device, dtype=tracker.dtype)

@@ -69,15 +69,28 @@ class MapVersion:
     frame_index: int              # the newest frame mapped into it (-1: empty map)
     gaussians: Gaussians          # detached tensors, never modified after publishing
     birth_frame: torch.Tensor
+    ready: object = None          # CUDA: an event recorded after the copy on the publishing stream
 
     def __len__(self) -> int:
         return len(self.gaussians)
+
+    def wait_ready(self) -> "MapVersion":
+        """Make the calling thread's current CUDA stream wait for the copy (no host wait), and tell
+        torch's allocator that stream uses these tensors (their memory, from the mapper's stream,
+        is not reused before the reader's queued work is done). Nothing to do on the CPU."""
+        if self.ready is not None:
+            stream = torch.cuda.current_stream(self.gaussians.means.device)
+            stream.wait_event(self.ready)
+            for x in (*self.gaussians.fields(), self.birth_frame):
+                if x.is_cuda:
+                    x.record_stream(stream)
+        return self
 
     @functools.cached_property
     def arrays(self) -> dict[str, np.ndarray]:
         """Read-only numpy arrays of the version (GaussianMap.to_numpy() layout), made on the first
         call, by whichever thread reads first, and kept: on the CPU they share the tensors' memory."""
-        out = self.gaussians.to_arrays()
+        out = self.wait_ready().gaussians.to_arrays()
         out["birth_frame"] = self.birth_frame.cpu().numpy()
         for a in out.values():
             a.setflags(write=False)
@@ -85,9 +98,15 @@ class MapVersion:
 
 
 def snapshot_version(gmap: GaussianMap, number: int, frame_index: int) -> MapVersion:
-    """A MapVersion of `gmap` as it is now (copies: later steps never touch it)."""
+    """A MapVersion of `gmap` as it is now (copies: later steps never touch it). On CUDA the copy
+    carries an event recorded on the publishing stream (the live engine's mapper has its own)."""
     g = gmap.tensors(detach=True)
-    return MapVersion(number, frame_index, Gaussians(*(x.clone() for x in g.fields())), gmap.birth_frame.clone())
+    copy = Gaussians(*(x.clone() for x in g.fields()))
+    ready = None
+    if g.means.is_cuda:
+        ready = torch.cuda.Event()
+        ready.record(torch.cuda.current_stream(g.means.device))
+    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready)
 
 
 @dataclass
@@ -240,8 +259,10 @@ class SplaTAM:
             return self._version
 
     def latest_version(self) -> MapVersion | None:
+        """The newest version, ready for the calling thread's CUDA stream (MapVersion.wait_ready)."""
         with self._version_lock:
-            return self._version
+            version = self._version
+        return version.wait_ready() if version is not None else None
 
     # ------------------------------------------------------------------ state (checkpoints)
     def state_arrays(self) -> dict:

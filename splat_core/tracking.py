@@ -6,7 +6,7 @@
 Three steps, each start pose a named `Candidate` with its loss and pixel count, compared by one
 rule (`beats`):
     align    Gauss-Newton alignment of the frame to the map rendered at the prediction
-             (direct_align.py), optional (tracking.align_iterations)
+             (direct_align.py; direct_align_torch.py on CUDA), optional (tracking.align)
     accept   keep the aligned pose only if SplaTAM's own loss agrees it beats the prediction
     polish   SplaTAM's Adam iterations on the 7 pose numbers (w2c quaternion + translation),
              coarse to fine (a stage with no iterations is skipped)
@@ -109,28 +109,42 @@ def candidate(name: str, w2c: np.ndarray, rendered: Render, obs: Observation, co
         return Candidate(name, np.asarray(w2c, dtype=np.float64), float(loss), int(mask.sum()))
 
 
+def pose_adam(q: torch.Tensor, t: torch.Tensor, config: TrackingConfig) -> torch.optim.Adam:
+    """Adam on the pose (torch's fused kernel on CUDA: one launch a step instead of a dozen; the
+    CPU keeps the per-tensor loop, so its results stay as they were)."""
+    groups = [{"params": [q], "lr": config.lr_rotation}, {"params": [t], "lr": config.lr_translation}]
+    return torch.optim.Adam(groups, fused=True) if q.device.type == "cuda" else torch.optim.Adam(groups)
+
+
 def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Candidate | np.ndarray,
            config: TrackingConfig, rival: Candidate | None = None) -> TrackResult:
     """SplaTAM's Adam iterations on the pose, from `start` (a Candidate or a w2c).
 
     rival: another start whose loss was computed on `obs` (e.g. the prediction an alignment began
     from). Adam's first iteration evaluates `start` anyway; if it does not beat the rival, the
-    optimisation starts from the rival instead, at no extra rendering."""
+    optimisation starts from the rival instead, at no extra rendering.
+
+    The best pose so far is kept on the device (torch.where), so an iteration asks the host
+    nothing: the loop synchronises only for the rival's test (first iteration), the optional
+    early stop (tracking.early_stop_tolerance > 0) and the optional budget extension
+    (depth_loss_threshold, once), and the result comes to the host once at the end."""
     w2c_start = start.w2c if isinstance(start, Candidate) else np.asarray(start, dtype=np.float64)
     start_name = start.name if isinstance(start, Candidate) else "prediction"
     dtype, device = gaussians.means.dtype, gaussians.means.device
     q = torch.tensor(rotmat_to_quat(w2c_start[:3, :3]), dtype=dtype, device=device, requires_grad=True)
     t = torch.tensor(w2c_start[:3, 3], dtype=dtype, device=device, requires_grad=True)
-    optimizer = torch.optim.Adam([{"params": [q], "lr": config.lr_rotation},
-                                  {"params": [t], "lr": config.lr_translation}])
-    best = (float("inf"), q.detach().clone(), t.detach().clone(), 0)
+    optimizer = pose_adam(q, t, config)
+    best_loss = torch.full((), float("inf"), dtype=dtype, device=device)
+    best_q, best_t = q.detach().clone(), t.detach().clone()
+    best_valid = torch.zeros((), dtype=torch.long, device=device)
+    min_valid = None
     budget, extended, done = config.iterations, False, 0
     while done < budget:
         out = obs.render(renderer, gaussians, w2c_from_quat_trans(q, t))
         loss, mask, depth_term = tracking_loss(out, obs.color, obs.depth, config)
-        value, valid = float(loss.detach()), int(mask.sum())
+        value, valid = loss.detach(), mask.sum()
         if rival is not None:
-            here = Candidate(start_name, w2c_start, value, valid)
+            here = Candidate(start_name, w2c_start, float(value), int(valid))
             if not beats(here, rival):
                 start_name = rival.name
                 with torch.no_grad():
@@ -140,17 +154,19 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
                 continue
             rival = None
         if done == 0:
-            min_valid = max(1, valid // 2)
-        if valid < min_valid:
-            value = float("inf")
-        if not config.compat_post_step_candidate and value < best[0]:
-            best = (value, q.detach().clone(), t.detach().clone(), valid)
+            min_valid = torch.clamp(valid // 2, min=1)
+        value = torch.where(valid < min_valid, torch.inf, value)
+        if not config.compat_post_step_candidate:
+            best_loss, best_q, best_t, best_valid = _keep_better(value, q, t, valid, best_loss, best_q, best_t,
+                                                                 best_valid)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        q_before, t_before = q.detach().clone(), t.detach().clone()
+        if config.early_stop_tolerance > 0:
+            q_before, t_before = q.detach().clone(), t.detach().clone()
         optimizer.step()
-        if config.compat_post_step_candidate and value < best[0]:
-            best = (value, q.detach().clone(), t.detach().clone(), valid)
+        if config.compat_post_step_candidate:
+            best_loss, best_q, best_t, best_valid = _keep_better(value, q, t, valid, best_loss, best_q, best_t,
+                                                                 best_valid)
         done += 1
         if config.early_stop_tolerance > 0:
             step = max(float((t.detach() - t_before).abs().max()), float((q.detach() - q_before).abs().max()))
@@ -160,11 +176,28 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
             per_pixel = float(depth_term) / max(int(mask.sum()), 1)
             if per_pixel > config.depth_loss_threshold:
                 budget, extended = 2 * budget, True
-    _, q_best, t_best, valid = best
-    w2c = pose_matrix(quat_to_rotmat_np(q_best.cpu().numpy().astype(np.float64)),
-                      t_best.cpu().numpy().astype(np.float64))
-    return TrackResult(w2c=w2c, loss=best[0], iterations=done, valid_pixels=valid, start=start_name,
-                       depth_pixels=int((obs.depth > 0).sum()))
+    packed = torch.cat([best_q.to(torch.float64), best_t.to(torch.float64), best_loss.to(torch.float64).reshape(1),
+                        best_valid.to(torch.float64).reshape(1),
+                        (obs.depth > 0).sum().to(torch.float64).reshape(1)]).cpu().numpy()
+    q_best, t_best = packed[:4], packed[4:7]
+    w2c = pose_matrix(quat_to_rotmat_np(q_best), t_best)
+    return TrackResult(w2c=w2c, loss=float(packed[7]), iterations=done, valid_pixels=int(packed[8]), start=start_name,
+                       depth_pixels=int(packed[9]))
+
+
+def _keep_better(value, q, t, valid, best_loss, best_q, best_t, best_valid):
+    """The best pose so far, on the device: (q, t) where `value` is below the best loss."""
+    with torch.no_grad():
+        better = value < best_loss
+        return (torch.where(better, value, best_loss), torch.where(better, q.detach(), best_q),
+                torch.where(better, t.detach(), best_t), torch.where(better, valid, best_valid))
+
+
+def align_backend(backend: str, device) -> str:
+    """tracking.align.backend resolved: auto is torch on CUDA (direct_align_torch.py), else numba."""
+    if backend == "auto":
+        return "torch" if torch.device(device).type == "cuda" else "numba"
+    return backend
 
 
 def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:
@@ -193,12 +226,8 @@ class Tracker:
         observations = [self.observe(color, depth, intr) for intr, _ in self.stages]
         start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
         rival = None
-        if tc.align_iterations > 0:
-            aligned = align_to_map(g, color, depth, self.intrinsics, start, levels=tc.align_levels,
-                                   iterations=tc.align_iterations, passes=tc.align_passes,
-                                   color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold,
-                                   near=self.renderer.near, depth_noise=tc.align_depth_noise,
-                                   live_stride=sparse_step(tc.align_stride, self.intrinsics, tc.align_min_points))
+        if tc.align.iterations > 0:
+            aligned = self.align(g, color, depth, start)
             full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
                 else self.observe(color, depth, self.intrinsics)
             prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
@@ -221,6 +250,17 @@ class Tracker:
         return dataclasses.replace(result, iterations=iterations)
 
     # -------------------------------------------------------------- helpers
+    def align(self, g: Gaussians, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray):
+        """The Gauss-Newton alignment (tracking.align) from w2c, by the configured backend."""
+        a = self.config.align
+        options = dict(levels=a.levels, iterations=a.iterations, passes=a.passes, color_weight=a.color_weight,
+                       silhouette=self.config.silhouette_threshold, near=self.renderer.near,
+                       depth_noise=a.depth_noise, live_stride=sparse_step(a.stride, self.intrinsics, a.min_points))
+        if align_backend(a.backend, self.device) == "torch":
+            from .direct_align_torch import align_to_map_torch
+            return align_to_map_torch(g, color, depth, self.intrinsics, w2c, **options)
+        return align_to_map(g, color, depth, self.intrinsics, w2c, **options)
+
     def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:
         """The Gaussians that can appear in the frame (with a margin for the motion to come)."""
         return self.renderer.visible(gaussians, self.intrinsics, w2c, margin=0.25)

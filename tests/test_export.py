@@ -139,7 +139,7 @@ def test_cli_accepts_a_map_file(run_dir, capsys):
 
 @pytest.mark.parametrize("case", ["unknown format", "no suffix", "missing", "not a run", "out is a folder"])
 def test_cli_errors_are_one_line(run_dir, tmp_path, capsys, case):
-    empty, nope, obj = tmp_path / "empty", tmp_path / "nope", tmp_path / "m.obj"
+    empty, nope, obj = tmp_path / "empty", tmp_path / "nope", tmp_path / "m.xyz"   # (.obj and .glb name a mesh)
     empty.mkdir()
     args, message = {
         "unknown format": ([run_dir, "--format", "gltf", "--out", tmp_path / "m.gltf"],

@@ -516,6 +516,6 @@ def test_unregistered_capture_is_tracked_on_depth_alone(tmp_path):
     assert pipe.config.tracking.color_weight == config.tracking.color_weight > 0 and not pipe.notes
     cam.write_text(cam.read_text() + "depth_registered_to_rgb: false\n")
     pipe = Pipeline(open_capture(fx.path), config)
-    assert pipe.config.tracking.color_weight == 0 and pipe.config.tracking.align_color_weight == 0
+    assert pipe.config.tracking.color_weight == 0 and pipe.config.tracking.align.color_weight == 0
     assert pipe.slam.config.tracking.color_weight == 0 and "not registered" in pipe.notes[0]
     assert config.tracking.color_weight > 0          # the caller's config is left alone

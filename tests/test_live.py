@@ -61,8 +61,8 @@ def test_gradient_rule_takes_the_strongest_edge_of_a_block():
 
 @pytest.mark.slow
 def test_live_engine_tracks_while_other_threads_render_its_map():
-    sequential = _run(Pipeline(_source(), _config(pixels="random", align_stride=2)))
-    live = Pipeline(_source(), _config(pixels="random", align_stride=2), engine="live")
+    sequential = _run(Pipeline(_source(), _config(pixels="random", align={"stride": 2})))
+    live = Pipeline(_source(), _config(pixels="random", align={"stride": 2}), engine="live")
     seen, errors, stop = {}, [], threading.Event()
     intr = live.intrinsics.scaled(80, 60)
 
@@ -104,7 +104,7 @@ def test_live_run_resumes_from_its_checkpoint(tmp_path):
     first = Pipeline(_source(8), config, tmp_path, engine="live")
     for _ in range(6):           # killed after frame 5: the checkpoint holds frames 0-3
         first.step()
-    first.live_engine.close()
+    first.engine.close()
     resumed = _run(Pipeline(_source(8), config, tmp_path, engine="live", resume=True))
     resumed.finish()
     assert len(resumed.slam.w2cs) == 8 and resumed.ate_cm() < 1.0

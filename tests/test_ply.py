@@ -1,4 +1,4 @@
-"""The 3DGS PLY writer/reader and the .splat layout (formats.md "Outputs other tools read")."""
+"""The 3DGS PLY writer/reader and the .splat layout (docs/formats.md, "Files written")."""
 
 from __future__ import annotations
 

@@ -12,7 +12,8 @@ from splat_core.synthetic import SyntheticSource
 def test_slam_on_a_synthetic_sequence_tracks_to_under_a_centimetre():
     # The cpu preset as shipped (320x240) on the benchmark's scene (seed 0). Lower resolutions bias
     # the rendered depth of a map of one-pixel Gaussians and give 1-2 cm; so does the harder camera
-    # path of seed 3 (1.8 cm, see README) - a known limit, not hidden by this test.
+    # path of seed 3 (1.8 cm, see docs/history/2026-11-23-cpu-preset-tracking.md) - a known limit,
+    # not hidden by this test.
     from splat_core.run import Pipeline
     pipe = Pipeline(SyntheticSource(n_frames=8, width=320, height=240, seed=0), load_config("cpu"))
     while pipe.step() is not None:

@@ -233,7 +233,7 @@ def test_map_update_policies_hold_back_changes_between_keyframes(server):
 
 def test_the_camera_layer_follows_the_map_update_policy(server):
     """The current camera and trajectory reach the browser when the splats do (any scene message
-    makes viser's page redraw for a while: README "Viewer"), and at once when tracking is lost."""
+    makes viser's page redraw for a while: docs/viewer-notes.md §3), and at once when tracking is lost."""
     from app.snapshot import KeyframeView, MapSnapshot
     from app.viewer import build_viewer
 

@@ -1,5 +1,5 @@
 """The viewer in a real browser: headless Debian Chromium (software WebGL) driven by Playwright
-against an in-process server on port 0 (viser_notes §2.3). Small maps, polling, no sleeps for
+against an in-process server on port 0 (docs/viewer-notes.md §2.3). Small maps, polling, no sleeps for
 state. Skipped when /usr/bin/chromium or playwright is missing."""
 
 from __future__ import annotations

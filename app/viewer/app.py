@@ -36,6 +36,7 @@ from .assets import WebAssets, apply_theme, load_assets
 from .control_gui import ControlGui
 from .export_panel import ExportPanel
 from .feed import SnapshotFeed, controls_of
+from .mesh_layer import MeshLayer
 from .measure import MeasureTool
 from .novel_view import MODES, NovelView, RenderService
 from .panels import Panels
@@ -86,6 +87,7 @@ class ViewerApp:
 
         self.control_gui = ControlGui()
         self.renderer = RenderService()
+        self.mesh_layer = MeshLayer(server, lambda: self.feed.latest(), gui=self.control_gui)   # owns /map: before any chunk
         self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats,
                                   draw_while_running)
         self.scrubber = KeyframeScrubber(server, self.map_layer, None, self.renderer, self._render_map,
@@ -97,7 +99,8 @@ class ViewerApp:
         self.panels.first_note = first_note
         if preview_frame is not None:
             self.panels.show_preview(preview_frame.color, preview_frame.depth, preview_frame.index)
-        self.export_panel = ExportPanel(server, self.feed, export_dir=self.export_dir, gui=self.control_gui)
+        self.export_panel = ExportPanel(server, self.feed, export_dir=self.export_dir, gui=self.control_gui,
+                                        mesh=self.mesh_layer)
         self.refine_panel = RefinePanel(server, self.feed, gui=self.control_gui)
         self.feed.on_refined(self.wake)
         self.video_panel = CameraPathPanel(server, self.feed.latest, export_dir=self.export_dir,
@@ -242,6 +245,7 @@ class ViewerApp:
         if snap.live is not None and (prev is None or prev.live is not snap.live):
             p.update_live(snap)
         self.scrubber.update(snap)
+        self.mesh_layer.sync(snap)
         self.updates += 1
         self.applied = snap      # fully pushed to viser (tests and the benchmark wait on this)
         return True

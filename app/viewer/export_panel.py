@@ -24,8 +24,7 @@ from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
           "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page",
-          "trajectory": "trajectory.txt (TUM, camera-to-world)"}
-CHOICES = FORMATS + ("trajectory",)
+          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
 
 STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
                "starting": "Exports the map as it is now; SLAM keeps running.",
@@ -38,15 +37,16 @@ STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
 
 class ExportPanel:
     def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, gui=None,
-                 order: float = 4):
+                 order: float = 4, mesh=None):
         self.source = source                # latest() -> MapSnapshot | None
+        self.mesh = mesh                    # a MeshLayer: offers the "mesh" entry
         self.export_dir = Path(export_dir) / "exports" if export_dir else None
         self._busy = threading.Lock()
         self.exports = 0
         gui = gui if gui is not None else server.gui
         where = f"into `{self.export_dir}`" if self.export_dir else "into a temporary folder"
         with gui.add_folder("Export", order=order):
-            self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in CHOICES),
+            self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in self.formats),
                                            initial_value=LABELS[FORMATS[0]],
                                            hint="The map in a splat format, or the estimated trajectory")
             self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD,
@@ -56,8 +56,12 @@ class ExportPanel:
         self.button.on_click(self._on_click)
 
     @property
+    def formats(self) -> tuple:
+        return FORMATS + ("trajectory",) + (("mesh",) if self.mesh is not None else ())
+
+    @property
     def selected_format(self) -> str:
-        return next(f for f in CHOICES if LABELS[f] == self.format.value)
+        return next(f for f in self.formats if LABELS[f] == self.format.value)
 
     def follow(self, snap) -> None:
         """The note follows the run's state (running, paused, finished, browsing)."""
@@ -77,12 +81,23 @@ class ExportPanel:
         """Export the latest snapshot's map as `fmt`; the path written, or None while another
         export is running."""
         snap = self.source.latest()
-        if snap is None or (fmt != "trajectory" and snap.num_gaussians == 0):
+        if snap is None or (fmt not in ("trajectory", "mesh") and snap.num_gaussians == 0):
             raise InputError("there is no map to export yet")
         if fmt == "trajectory" and len(snap.estimated_c2w) == 0:
             raise InputError("there is no trajectory to export yet")
         if not self._busy.acquire(blocking=False):
             return None
+        if fmt == "mesh":
+            try:
+                self.button.disabled = True
+                self.info.content = "Building the mesh…"
+                path = self.mesh.export(self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-")))
+                self.exports += 1
+                self.info.content = f"{path.name}: {path.stat().st_size:,} bytes, written to `{path}`"
+                return path
+            finally:
+                self.button.disabled = False
+                self._busy.release()
         try:
             self.button.disabled = True
             folder = self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-"))

@@ -4,7 +4,7 @@ A click gives a ray from the browser camera (viser's scene click: origin and dir
 coordinates). `pick_point` finds the pixel of that ray in the browser camera's image, renders
 the map's depth at that one pixel with our renderer (`render_pixels`), and walks that far along
 the ray: the point lies where the rendered surface is, whatever the WebGL view showed. Depth is
-the alpha-weighted z of the Gaussians (DESIGN.md §4), so the surface depth is depth / alpha; a
+the alpha-weighted z of the Gaussians (docs/design.md, the renderer contract), so the surface depth is depth / alpha; a
 pixel that the map barely covers (alpha < `min_alpha`) has no point.
 
 The tool (`MeasureTool`) keeps the clicked points: the second one draws a line and a label with

@@ -3,7 +3,7 @@
 `RenderService` runs render jobs on one thread. Each slot (a browser client's novel view, the
 keyframe comparison) holds only its latest request, so a fast camera drag never queues stale
 work. `NovelView` is the per-client novel-view mode: while it is on, the client's WebGL splats
-are hidden by shadowing `/map` for that client only (viser_notes §1.8), and our render of the map
+are hidden by shadowing `/map` for that client only (docs/viewer-notes.md §1.8), and our render of the map
 from the browser camera is sent as that client's background image: low resolution while the
 camera moves, full resolution once it has been still for a moment (the nerfview pattern).
 """

@@ -1,7 +1,7 @@
 """The 3D scene: the map as splat chunks per keyframe, keyframe frustums, trajectories and the
 current camera. Only this module and the panels call viser's scene API.
 
-Map layout (viser_notes §1.2): viser has no splat append and every change costs O(N_total) in
+Map layout (docs/viewer-notes.md §1.2): viser has no splat append and every change costs O(N_total) in
 the browser, so the map is split by birth keyframe. Node `/map/kf_<frame>` holds the Gaussians
 born in (previous keyframe, keyframe]; `/map/tail` those born after the last keyframe. A new
 keyframe sends only its own chunk; the tail is small. Because SLAM keeps refining old Gaussians
@@ -22,7 +22,7 @@ arrives, and nothing between keyframes; "continuous" also re-sends the tail with
 snapshot (at most update_hz); "off" sends nothing until the run pauses or ends. The viewer holds
 the camera layer (current camera, trajectories, keyframe frustums) to the same policy: each
 scene message makes viser's page draw frames for 250 ms, which a browser that draws WebGL in
-software pays for on the cores SLAM uses (README "Viewer").
+software pays for on the cores SLAM uses (docs/viewer-notes.md §3; figures: docs/benchmarks.md, Viewer).
 
 `budget` (`splatam-viewer --browser-splats N`) caps what the browser draws while SLAM runs: past
 N Gaussians it gets every stride-th Gaussian of each chunk (stride a power of two), each with
@@ -32,7 +32,7 @@ splats it draws, at least once a second even when nothing changes.
 
 `running_style` (`splatam-viewer --draw-while-running points`) draws each chunk as a point cloud
 while SLAM runs (a point per Gaussian, its colour, a size from the chunk's Gaussians): in
-software WebGL a point costs a fifth of a splat or less (README "Viewer"). Pausing or finishing
+software WebGL a point costs a fifth of a splat or less (docs/benchmarks.md, Viewer). Pausing or finishing
 sends splats again.
 """
 

@@ -1,4 +1,4 @@
-"""Sanity checks on a capture: depth statistics and the pose-convention check of formats.md.
+"""Sanity checks on a capture: depth statistics and the pose-convention check of docs/formats.md.
 
 Convention check: back-project frame i's depth, carry the points with the reference poses into
 frame j = i + k, project, and compare the points' z with frame j's depth there. With the right

@@ -13,7 +13,7 @@ Policies every reader follows (stated once here):
 - Phone confidence maps (ARKit's 0 low, 1 medium, 2 high): depth with confidence below
   `min_confidence` becomes invalid. Default 2 (high only), as viser's Record3D loader, usa's
   reader, concept-graphs' converter and Stray Scanner's own `convert_to_open3d.py` do for
-  reconstruction (capture_layouts.md); the map is built from depth, and medium-confidence pixels
+  reconstruction (docs/formats.md, capture layouts section 1); the map is built from depth, and medium-confidence pixels
   are where flying pixels at depth edges and far range live. StrayVisualizer's point-cloud view
   defaults to 1: pass `min_confidence=1` for that denser, noisier depth, or 0 to keep everything.
 - Intrinsics that vary per frame (ARKit refocuses) are given per frame when the capture stores

@@ -1,7 +1,7 @@
 """Which reader opens a capture: detection from the folder's (or archive's) contents.
 
 `open_capture(path)` looks at what is there; `open_capture(path, format="tum")` skips the guess.
-`FORMATS` lists every format with what it needs and how to get one (the README quotes it).
+`FORMATS` lists every format with what it needs and how to get one (docs/formats.md quotes it).
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
 """NeRFCapture (iPhone app streaming over the network), as the capture scripts save it
-(capture_layouts.md section 3), in a folder or a zip of one:
+(docs/formats.md, capture layouts section 3), in a folder or a zip of one:
 
 - SplaTAM's `scripts/nerfcapture2dataset.py`: rgb/<i>.png, depth/<i>.png;
 - instant-ngp's `scripts/nerfcapture2nerf.py`: images/<i>.png, images/<i>.depth.png, with

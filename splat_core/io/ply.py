@@ -4,7 +4,7 @@ Arrays follow `GaussianMap.to_numpy()` (raw, pre-activation parameters):
     means N x 3, colors N x 3 (RGB), rotations N x 4 (w, x, y, z, unnormalised),
     logit_opacities N, log_scales N x 1 (isotropic) or N x 3, birth_frame N (optional).
 
-3DGS PLY (formats.md "Outputs other tools read"): one `vertex` element, float32, binary little
+3DGS PLY (docs/formats.md, "Files written"): one `vertex` element, float32, binary little
 endian, properties `x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 opacity scale_0 scale_1 scale_2 rot_0
 rot_1 rot_2 rot_3`, with f_dc = (rgb - 0.5) / C0 so that a viewer's 0.5 + C0 * f_dc gives the
 colour back, `opacity` the logit and `scale_*` natural-log scales (isotropic tiled x3).

@@ -8,7 +8,7 @@ confidence (0 low, 1 medium, 2 high).
 
 Depth arrays are row-major images in the same orientation as the colour image: a portrait
 capture (w < h) stores the 256x192 LiDAR map as 256 rows x 192 columns, and its metadata says
-dw=192, dh=256 (capture_layouts.md). dw/dh given in the other order are swapped to match the
+dw=192, dh=256 (docs/formats.md, capture layouts section 1). dw/dh given in the other order are swapped to match the
 colour image; files without dw/dh get the depth shape from the decoded size (256x192 LiDAR,
 640x480 front camera, or the RGB size), oriented like w/h. Depth and confidence are brought
 together with colour to one working resolution (see common.py); depth below `min_confidence` is

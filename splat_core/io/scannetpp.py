@@ -1,7 +1,7 @@
 """ScanNet++ DSLR (undistorted): dslr/nerfstudio/transforms_undistorted.json (PINHOLE fl_x fl_y cx
 cy w h, `frames` and `test_frames`, each with file_path, transform_matrix = 4x4 c2w in OpenGL
 camera axes, is_bad), dslr/undistorted_images/<file_path>, and depth rendered from the mesh as
-uint16 millimetres (0 invalid), from one of two routes (capture_layouts.md section 5):
+uint16 millimetres (0 invalid), from one of two routes (docs/formats.md, capture layouts section 5):
 
 - SplaTAM's fork of the toolkit (Nik-V9/scannetpp): dslr/undistorted_depths/<stem>.png, already
   undistorted like the colour images (read as is);

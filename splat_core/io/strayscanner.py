@@ -4,7 +4,7 @@ confidence/<i:06>.png (0/1/2), odometry.csv, camera_matrix.csv (3x3 K for the vi
 odometry.csv: header `timestamp, frame, x, y, z, qx, qy, qz, qw` (c2w); older exports have no
 timestamp/frame columns (then row i is video frame i at i / fps s). The poses are OpenCV camera
 axes: the app converts ARKit's camera axes before writing (OdometryEncoder.swift, see
-capture_layouts.md). camera_matrix.csv describes the full-resolution video (1920x1440); when the
+docs/formats.md, capture layouts section 2). camera_matrix.csv describes the full-resolution video (1920x1440); when the
 video is smaller, K is scaled to it, with a warning. Rows for frames beyond the last one rgb.mp4
 decodes are dropped with a warning. Confidence: default high only (common.py says why).
 
@@ -166,7 +166,8 @@ class StrayScannerCapture(IndexedCapture):
 
     def _decodable_frames(self, needed: int) -> int:
         """How many leading video frames decode, up to `needed`. The app's video can hold a frame
-        less than odometry.csv has rows (its first sample is stamped -1/60 s; capture_layouts.md):
+        less than odometry.csv has rows (its first sample is stamped -1/60 s; docs/formats.md,
+        capture layouts section 2):
         the container's count is checked by decoding the last frame, stepping back if it fails."""
         n = min(self.video.count, needed) if self.video.count > 0 else needed
         for _ in range(3):

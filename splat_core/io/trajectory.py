@@ -1,7 +1,7 @@
 """TUM trajectory text: one pose per line, `t tx ty tz qx qy qz qw`, camera-to-world.
 
 This is what evo and the TUM benchmark tools read. Quaternions in files are (qx, qy, qz, qw);
-in code they are (w, x, y, z) (DESIGN.md §3).
+in code they are (w, x, y, z) (docs/design.md, Conventions).
 """
 
 from __future__ import annotations

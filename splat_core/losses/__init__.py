@@ -1,7 +1,7 @@
 """Image losses for tracking and mapping: masked L1 and SSIM (torch, differentiable).
 
 Images are H x W x C (the renderer's colour layout) or H x W (depth, silhouette); any float
-dtype and device. SSIM follows the standard 3D Gaussian splatting definition (spec §4.4): an
+dtype and device. SSIM follows the standard 3D Gaussian splatting definition (Kerbl et al. 2023, as SplaTAM uses it): an
 11 x 11 Gaussian window with sigma 1.5 applied per channel, zero padding of 5 pixels,
 C1 = 0.01^2, C2 = 0.03^2 (data range 1), and the mean of the SSIM map. The window is the outer
 product of a 1D Gaussian, so the blur runs as two 1D passes (same result, about twice as fast on

@@ -4,6 +4,8 @@ losses/__init__.py). A leaf: the dispatcher and the Numba kernels (ssim_cpu.py) 
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 
@@ -77,10 +79,16 @@ def _to_nchw(img: torch.Tensor) -> torch.Tensor:
     raise ValueError(f"expected an H x W or H x W x C image, got shape {tuple(img.shape)}")
 
 
+@functools.lru_cache(maxsize=16)
+def _window_on(dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """The 1D window, made once per device (a copy to the GPU per call would make the host wait)."""
+    return gaussian_window_1d(dtype=dtype, device=device)
+
+
 def _blur(t: torch.Tensor) -> torch.Tensor:
     """The SSIM window applied to every channel of 1 x K x H x W, zero padded: rows, then columns."""
     k, pad = t.shape[1], SSIM_WINDOW // 2
-    g = gaussian_window_1d(dtype=t.dtype, device=t.device)
+    g = _window_on(t.dtype, t.device)
     t = F.conv2d(t, g.view(1, 1, 1, -1).expand(k, 1, 1, SSIM_WINDOW), padding=(0, pad), groups=k)
     return F.conv2d(t, g.view(1, 1, -1, 1).expand(k, 1, SSIM_WINDOW, 1), padding=(pad, 0), groups=k)
 

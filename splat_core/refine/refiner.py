@@ -32,7 +32,7 @@ from .density import DensitySettings, GradientStats, densify_and_prune
 
 # Higher than SLAM's mapping rates: a refine has hundreds of steps, not 3DGS's 30k, to move colours
 # and sizes (100 iterations on SUN3D fragment 1 at 640x480: +1.6 dB with these and density control,
-# +0.9 dB with the mapping rates and none; README "Refinement").
+# +0.9 dB with the mapping rates and none; docs/refine.md).
 REFINE_LRS = dict(means=2e-4, colors=1e-2, log_scales=5e-3)
 
 

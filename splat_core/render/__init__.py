@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ..camera import Intrinsics
+from ..device import to_device
 from ..gaussians import PARAM_NAMES, GaussianMap, Gaussians
 from ._constants import TILE
 from .project import frustum_mask, project_gaussians
@@ -76,8 +77,8 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
     g = gaussians.tensors() if isinstance(gaussians, GaussianMap) else gaussians
     dtype, device = g.means.dtype, g.means.device
     if not torch.is_tensor(w2c):
-        w2c = torch.as_tensor(np.asarray(w2c), dtype=dtype, device=device)
-    bg = torch.as_tensor(background, dtype=dtype, device=device).reshape(-1)
+        w2c = to_device(w2c, dtype, device)
+    bg = to_device(background, dtype, device).reshape(-1)
     H, W = intrinsics.height, intrinsics.width
 
     which = resolve_backend(backend, device)
@@ -102,7 +103,7 @@ def render(gaussians, intrinsics: Intrinsics, w2c, *, background=0.0, backend: s
                                                p.radii, W, H)
         color, depth = image[..., :3], image[..., 3]
     if tiles is not None and which != "cpu":     # the CPU rasterizer left the other tiles empty itself
-        keep = torch.as_tensor(tile_pixels(tiles, W, H), device=device).to(dtype)
+        keep = to_device(tile_pixels(tiles, W, H), dtype, device)
         color, depth, alpha = color * keep[..., None], depth * keep, alpha * keep
     color = color + (1.0 - alpha)[..., None] * bg
     return Render(color, depth, alpha)
@@ -121,7 +122,7 @@ def render_pixels(gaussians, intrinsics: Intrinsics, w2c, pixels, *, background=
     which = resolve_backend(backend, device)
     if which != "cpu" or len(g) == 0:
         out = render(g, intrinsics, w2c, background=background, backend=which, near=near, eps2d=eps2d)
-        flat = torch.as_tensor(pixels[:, 1] * intrinsics.width + pixels[:, 0], device=device)
+        flat = to_device(pixels[:, 1] * intrinsics.width + pixels[:, 0], torch.int64, device)
         return Render(out.color.reshape(-1, 3)[flat], out.depth.reshape(-1)[flat], out.alpha.reshape(-1)[flat])
     if not torch.is_tensor(w2c):
         w2c = torch.as_tensor(np.asarray(w2c), dtype=dtype, device=device)

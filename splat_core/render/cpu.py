@@ -6,7 +6,7 @@ depth order, pixel (u, v) is evaluated at (u, v), alpha = min(0.99, o exp(power)
 with power > 0 or alpha < 1/255 are skipped, and compositing stops before the Gaussian that
 would push transmittance below 1e-4.
 
-How it is fast (measurements in ../shared/reference/cpu_rasterizer_notes.md):
+How it is fast (what was tried and measured: docs/renderer.md):
 - Binning: a Gaussian can only pass the 1/255 test where q(d) = d^T conic d <= K,
   K = 2 ln(255 o). The bounding box of that ellipse (K slightly enlarged) picks the 16 x 16 tiles
   it touches; a counting sort over the depth-sorted Gaussians gives every tile its list of

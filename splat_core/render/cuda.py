@@ -17,6 +17,7 @@ import threading
 import torch
 
 from ..camera import Intrinsics
+from ..device import to_device
 
 _lock = threading.Lock()
 _gsplat = None          # the module once imported
@@ -74,12 +75,11 @@ def render_gsplat(g, intr: Intrinsics, w2c: torch.Tensor, near: float = 0.01, ep
     scales = torch.exp(g.log_scales)
     if scales.shape[-1] == 1:
         scales = scales.expand(-1, 3)
-    K = torch.tensor([[intr.fx, 0.0, intr.cx], [0.0, intr.fy, intr.cy], [0.0, 0.0, 1.0]],
-                     dtype=dtype, device=device)
-    w2c = w2c.to(device=device, dtype=dtype)
     # gsplat's pixel centres sit at half-integers (pixel (u, v) is evaluated at u + 0.5, v + 0.5);
-    # ours sit at integers (camera.py), so shift the principal point by half a pixel.
-    K = K + torch.tensor([[0.0, 0.0, 0.5], [0.0, 0.0, 0.5], [0.0, 0.0, 0.0]], dtype=dtype, device=device)
+    # ours sit at integers (camera.py), so shift the principal point by half a pixel. Staged through
+    # pinned memory (device.to_device): no host synchronisation per render.
+    K = to_device([[intr.fx, 0.0, intr.cx + 0.5], [0.0, intr.fy, intr.cy + 0.5], [0.0, 0.0, 1.0]], dtype, device)
+    w2c = w2c.to(device=device, dtype=dtype)
     renders, alphas, _meta = gs.rasterization(
         means=g.means, quats=g.rotations, scales=scales,
         opacities=torch.sigmoid(g.logit_opacities), colors=g.colors,

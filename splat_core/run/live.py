@@ -31,19 +31,35 @@ stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measure
 giving each thread half the cores (Numba's threads are per thread) or halving torch's threads
 was slower (docs/engines.md).
 
+GPU: the mapper runs on its own CUDA stream (mapper_stream); a published version carries an event
+that readers' streams wait for (MapVersion.wait_ready), so neither thread's host waits for the other's kernels.
+
 Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
 sequential engine (SplaTAM.process) is the deterministic reference.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from collections import deque
 
+import torch
+
 from ..config import LiveConfig
 from ..frame import Frame
 from ..slam import FrameResult, MapStats, MapVersion, SplaTAM
+
+
+def mapper_stream(device):
+    """On CUDA: the mapper thread's work goes to a stream of its own, so the tracker's kernels
+    (on the default stream) never queue behind a mapping step. Versions are handed over with an
+    event (SplaTAM.publish / MapVersion.wait_ready). Elsewhere: nothing."""
+    device = torch.device(device)
+    if device.type != "cuda":
+        return contextlib.nullcontext()
+    return torch.cuda.stream(torch.cuda.Stream(device))
 
 
 class LiveEngine:
@@ -112,6 +128,7 @@ class LiveEngine:
             while self._mapped < self._handed and self.error is None:
                 self._cond.wait(0.5)
             self._raise()
+        self.slam.latest_version()      # CUDA: the caller's stream waits for the mapper's last step
 
     def close(self) -> None:
         with self._cond:
@@ -128,15 +145,16 @@ class LiveEngine:
     # ------------------------------------------------------------------ the mapper thread
     def _run_mapper(self) -> None:
         try:
-            while True:
-                with self._cond:
-                    while not self._pending and not self._closing:
-                        self._cond.wait(0.5)
-                    if not self._pending:
-                        return
-                    batch = list(self._pending)
-                    self._pending.clear()
-                self._map(batch)
+            with mapper_stream(self.slam.device):
+                while True:
+                    with self._cond:
+                        while not self._pending and not self._closing:
+                            self._cond.wait(0.5)
+                        if not self._pending:
+                            return
+                        batch = list(self._pending)
+                        self._pending.clear()
+                    self._map(batch)
         except BaseException as e:       # reported to the tracker at its next call
             with self._cond:
                 self.error = e

@@ -70,11 +70,11 @@ class Pipeline:
             raise InputError(f"--engine {engine}: expected one of {', '.join(ENGINES)}")
         self.engine_name = engine
         self.notes: list[str] = []             # adjustments made for this input, shown by the CLI
-        if not source.registered and (config.tracking.color_weight or config.tracking.align_color_weight):
+        if not source.registered and (config.tracking.color_weight or config.tracking.align.color_weight):
             # Colour a few pixels off the depth pulls the pose away from where the depth puts it
-            # (7-Scenes: 4.0-4.5 cm ATE with colour, 2.5 cm without; docs/benchmarks.md).
+            # (7-Scenes: 4.0-4.5 cm ATE with colour, 2.5 cm without; docs/history/2026-11-23-cpu-preset-tracking.md).
             config = dataclasses.replace(config, tracking=dataclasses.replace(
-                config.tracking, color_weight=0.0, align_color_weight=0.0))
+                config.tracking, color_weight=0.0, align=dataclasses.replace(config.tracking.align, color_weight=0.0)))
             self.notes.append("colour and depth are not registered (camera file): tracking uses depth alone")
         self.source, self.config = source, config
         self.folder = RunFolder(out_dir) if out_dir is not None else None

@@ -1,10 +1,10 @@
 """Tiny synthetic captures written in each app's or toolkit's own layout.
 
-Each writer follows what the real writer does, as read from its source and recorded in
-/work/shared/reference/capture_layouts.md (cited per writer: repository @ commit, path): file
+Each writer follows what the real writer does, as read from its source and summarised
+in docs/formats.md, "Capture layouts in detail" (cited per writer: repository @ commit, path): file
 names, image sizes where the reader depends on them, units and rounding, pose and intrinsics
 conventions, invalid-depth markers. The scene, the expected frames and the tolerances live in
-fixture_scene.py; `Fixture.expected(i)` is what a reader must return for frame i.
+helpers/scene.py; `Fixture.expected(i)` is what a reader must return for frame i.
 """
 
 from __future__ import annotations
@@ -127,7 +127,7 @@ SCANNET_COLOR_K = Intrinsics(1169.621094, 1167.105103, 646.295044, 489.927032, 1
 
 
 def write_scannet(root: Path, n=6, color_size=(1296, 968)) -> Fixture:
-    """ScanNet/ScanNet SensReader/python/SensorData.py (capture_layouts.md section 4): color/<f>.jpg,
+    """ScanNet/ScanNet SensReader/python/SensorData.py (docs/formats.md, capture layouts section 4): color/<f>.jpg,
     depth/<f>.png (uint16 mm, 640x480), pose/<f>.txt and intrinsic/{intrinsic,extrinsic}_{color,depth}.txt
     as savetxt('%f') rows; intrinsic_color is the sensor's 1296x968 camera even when
     `export_color_images(image_size=...)` resized the colour (nearest), e.g. color_size=(640, 480).
@@ -177,7 +177,7 @@ def _fisheye_depth(c2w, K, D, size) -> np.ndarray:
 
 
 def write_scannetpp(root: Path, n=8, route="fork") -> Fixture:
-    """ScanNet++ DSLR scene (capture_layouts.md section 5). Both routes: the download's
+    """ScanNet++ DSLR scene (docs/formats.md, capture layouts section 5). Both routes: the download's
     dslr/nerfstudio/transforms.json (scannetpp @f3b4712 common/utils/nerfstudio.py: OPENCV_FISHEYE
     fl_x fl_y cx cy k1-k4 w h, frames/test_frames with file_path, transform_matrix in OpenGL camera
     axes, mask_path; is_bad) and dslr/undistort.py's undistorted_images/ + transforms_undistorted.json
@@ -218,7 +218,7 @@ def _float32_intrinsics(intr: Intrinsics) -> Intrinsics:
 
 
 def write_nerfcapture(root: Path, n=8, layout="splatam") -> Fixture:
-    """The app streaming over DDS, saved by a capture script (capture_layouts.md section 3):
+    """The app streaming over DDS, saved by a capture script (docs/formats.md, capture layouts section 3):
     layout="splatam": spla-tam/SplaTAM @da6bbcd scripts/nerfcapture2dataset.py (rgb/<i>.png,
     depth/<i>.png, file_path "rgb/<i>.png"); layout="instant-ngp": NVlabs/instant-ngp
     scripts/nerfcapture2nerf.py (images/<i>.png, images/<i>.depth.png, file_path "images/<i>").
@@ -250,7 +250,7 @@ def write_nerfcapture(root: Path, n=8, layout="splatam") -> Fixture:
 
 def write_nerfcapture_offline(path: Path, n=3, depth="rgba", as_zip=True) -> Path:
     """The app's own offline export (jc211/NeRFCapture @312cb01 NeRFCapture/DatasetWriter.swift,
-    Models/Manifest.swift; capture_layouts.md section 3): Zip.quickZipFiles of a <YYMMddHHmmss>/
+    Models/Manifest.swift; docs/formats.md, capture layouts section 3): Zip.quickZipFiles of a <YYMMddHHmmss>/
     folder with images/<i>.png, images/<i>.depth.png and transforms.json in Manifest's field order,
     snake-cased keys (w h fl_x fl_y cx cy depth_integer_scale=1.0 frames; frames: file_path
     "images/<i>", depth_path, transform_matrix, timestamp, fl_x fl_y cx cy w h). depth="rgba": the
@@ -290,7 +290,7 @@ def _confidence(shape) -> np.ndarray:
 
 
 def write_record3d(path: Path, n=8, as_zip=False, dw_dh=True, per_frame_intrinsics=True) -> Fixture:
-    """A portrait LiDAR .r3d (capture_layouts.md section 1, from the app author's reader
+    """A portrait LiDAR .r3d (docs/formats.md, capture layouts section 1, from the app author's reader
     marek-simonik/record3d_offline_unity_demo @ad5eade Assets/Scripts/Record3D/Playback/Record3DVideo.cs,
     nerfstudio-project/viser @6bd9d22 src/viser/extras/_record3d.py and codekansas/usa
     usa/tasks/datasets/r3d.py): a zip (or its unzipped folder) with `metadata` JSON (K column-major
@@ -328,7 +328,7 @@ def write_record3d(path: Path, n=8, as_zip=False, dw_dh=True, per_frame_intrinsi
 def write_strayscanner(root: Path, n=8, old=False, video_frames=None) -> Fixture:
     """A Stray Scanner scan folder (strayrobots/scanner @e0e2522 docs/format.md and
     StrayScanner/Helpers/{DatasetEncoder,OdometryEncoder,DepthEncoder,ConfidenceEncoder,VideoEncoder}.swift,
-    CCode/PngEncoder.mm; capture_layouts.md section 2): rgb.mp4 at the 1920x1440 capture size (HEVC
+    CCode/PngEncoder.mm; docs/formats.md, capture layouts section 2): rgb.mp4 at the 1920x1440 capture size (HEVC
     in the app; mp4v here, OpenCV cannot write HEVC), depth/<f:06>.png uint16 round(mm) 256 wide x
     192 high, confidence/<f:06>.png L8 0/1/2, odometry.csv `timestamp, frame, x, y, z, qx, qy, qz, qw`
     with ARFrame timestamps and frame as %06d, poses c2w already in OpenCV camera axes,

@@ -3,7 +3,7 @@
 A camera moving (and turning) in front of a textured back wall, a floor, a side wall and a
 floating panel. Depth is analytic (ray/plane intersection at the pixel centres, camera.py's
 convention), colour a smooth function of the hit point, poses exact (c2w, OpenCV axes).
-`capture_fixtures.py` writes sequences of it in each app's or toolkit's own layout.
+`captures.py` writes sequences of it in each app's or toolkit's own layout.
 """
 
 from __future__ import annotations
