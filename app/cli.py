@@ -42,21 +42,25 @@ def _run(module_name: str, args: argparse.Namespace) -> int:
 
 def parse_or_suggest(parser: argparse.ArgumentParser, argv, subparsers: dict | None = None):
     """parse_args, but an unknown option is reported by the subcommand's own parser (its usage) with the
-    closest option it has ("did you mean --max-frames?")."""
+    closest option it has ("did you mean --max-frames?"), before any complaint about missing ones."""
     import difflib
 
-    args, extra = parser.parse_known_args(argv)
-    if not extra:
-        return args
-    target = (subparsers or {}).get(getattr(args, "command", None), parser)
+    words = list(sys.argv[1:] if argv is None else argv)
+    target = parser
+    if subparsers:
+        name = next((w for w in words if not w.startswith("-")), None)
+        target = subparsers.get(name, parser)
     options = [o for action in target._actions for o in action.option_strings]
-    hints = []
-    for word in extra:
-        if word.startswith("-"):
+    unknown = [w for w in words if w.startswith("--") and w != "--"
+               and not any(o.startswith(w.split("=")[0]) for o in options)]
+    if unknown:
+        hints = []
+        for word in unknown:
             close = difflib.get_close_matches(word.split("=")[0], options, n=1, cutoff=0.6)
             if close:
                 hints.append(f"{word}: did you mean {close[0]}?")
-    target.error(f"unrecognized arguments: {' '.join(extra)}" + (f" ({'; '.join(hints)})" if hints else ""))
+        target.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({'; '.join(hints)})" if hints else ""))
+    return parser.parse_args(words)
 
 
 def splatam_main(argv=None) -> int:
