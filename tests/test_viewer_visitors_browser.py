@@ -68,7 +68,7 @@ def served(tmp_path_factory):
 
 def open_page(browser, url, server=None):  # noqa: F811
     """A connected page (and its viser client when `server` is given)."""
-    page = browser.new_page(viewport={"width": 1000, "height": 800})
+    page = browser.new_page(viewport={"width": 900, "height": 600})   # small: software WebGL draws every pixel
     page.console = []
     page.on("console", lambda m: page.console.append(m.text))
     known = set(server.get_clients()) if server is not None else set()
