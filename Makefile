@@ -36,7 +36,9 @@ chromium:
 	  else echo "warning: $(CHROMIUM) missing and apt-get unavailable; browser tests will be skipped"; fi; \
 	fi
 
+# The CPU kernels compile on first use (~60 s on two cores); app.warmup does it before the page opens.
 demo: venv
+	$(PY) -m app.warmup
 	$(VENV)/bin/splatam-viewer
 
 test: test-venv chromium

@@ -40,14 +40,39 @@ def _run(module_name: str, args: argparse.Namespace) -> int:
         return 130
 
 
+def parse_or_suggest(parser: argparse.ArgumentParser, argv, subparsers: dict | None = None):
+    """parse_args, but an unknown option is reported by the subcommand's own parser (its usage) with the
+    closest option it has ("did you mean --max-frames?"), before any complaint about missing ones."""
+    import difflib
+
+    words = list(sys.argv[1:] if argv is None else argv)
+    target = parser
+    if subparsers:
+        name = next((w for w in words if not w.startswith("-")), None)
+        target = subparsers.get(name, parser)
+    options = [o for action in target._actions for o in action.option_strings]
+    unknown = [w for w in words if w.startswith("--") and w != "--"
+               and not any(o.startswith(w.split("=")[0]) for o in options)]
+    if unknown:
+        hints = []
+        for word in unknown:
+            close = difflib.get_close_matches(word.split("=")[0], options, n=1, cutoff=0.6)
+            if close:
+                hints.append(f"{word}: did you mean {close[0]}?")
+        target.error(f"unrecognized arguments: {' '.join(unknown)}" + (f" ({'; '.join(hints)})" if hints else ""))
+    return parser.parse_args(words)
+
+
 def splatam_main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="splatam", description="SplaTAM: RGB-D SLAM with 3D Gaussians")
     sub = parser.add_subparsers(dest="command", required=True)
+    subparsers = {}
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         p = sub.add_parser(name, help=help_text, description=help_text)
         importlib.import_module(module_name).add_arguments(p)
         p.set_defaults(_module=module_name)
-    args = parser.parse_args(argv)
+        subparsers[name] = p
+    args = parse_or_suggest(parser, argv, subparsers)
     return _run(args._module, args)
 
 
@@ -56,7 +81,7 @@ def viewer_main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="splatam-viewer",
                                      description="Live SplaTAM SLAM in the browser (viser)")
     importlib.import_module(module_name).add_arguments(parser)
-    return _run(module_name, parser.parse_args(argv))
+    return _run(module_name, parse_or_suggest(parser, argv))
 
 
 if __name__ == "__main__":  # pragma: no cover

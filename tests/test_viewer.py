@@ -98,6 +98,35 @@ def test_worker_live_render_with_the_real_renderer():
     assert np.isfinite(snap.live.psnr)
 
 
+class FakeClient:
+    """Enough of a viser ClientHandle for the scrubber: its own GUI and scene on the real server,
+    recording which scene names it shadows with hidden nodes."""
+
+    def __init__(self, server, client_id):
+        import types
+
+        from viser import ViserServer  # noqa: F401
+        self.client_id = client_id
+        self.hidden: set = set()
+        self.camera = types.SimpleNamespace(wxyz=None, position=None)
+        self.gui = server.gui
+        outer = self
+
+        class Scene:
+            def add_frame(self, name, visible=True, **_):
+                if not visible:
+                    outer.hidden.add(name)
+                return types.SimpleNamespace(remove=lambda: outer.hidden.discard(name))
+
+            def add_camera_frustum(self, name, **_):
+                return types.SimpleNamespace(remove=lambda: None, on_click=lambda cb: None)
+        self.scene = Scene()
+
+    def atomic(self):
+        import contextlib
+        return contextlib.nullcontext()
+
+
 def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
     from app.viewer import build_viewer
 
@@ -112,18 +141,24 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert names == ["/map/kf_000000", "/map/kf_000002", "/map/kf_000004", "/map/tail"]
         assert app.map_layer.consolidations >= 1               # the end of the run consolidates
         assert sorted(app.camera_layer.keyframe_frames) == [0, 2, 4]
-        assert app.panels.keyframe_slider.max == 2 and app.panels.keyframe_slider.value == 2
         assert "6 / 6" in app.panels.status.content
-        # scrub to the first keyframe: later chunks hidden, keyframe 0 highlighted
-        app.scrub_to(0)
-        nodes = app.map_layer._nodes
-        assert nodes["/map/kf_000000"].visible and not nodes["/map/kf_000002"].visible
-        assert not nodes["/map/tail"].visible
-        assert not app.panels.follow_latest.value
-        wait_until(lambda: "Keyframe 1 / 3" in app.panels.keyframe_info.content and
-                   "PSNR" in app.panels.keyframe_info.content, 30, what="keyframe render")
-        app.scrub_to(None)
-        assert all(h.visible for h in nodes.values())
+        # scrubbing is per page: a page scrubbed to the first keyframe hides later chunks for itself only
+        page_a, page_b = FakeClient(server, 0), FakeClient(server, 1)
+        for c in (page_a, page_b):
+            app.scrubber.attach(c)
+        scrub_a = app.scrubber.pages[0]
+        assert scrub_a.slider.max == 3 and scrub_a.slider.value == 3 and scrub_a.follow.value
+        app.scrubber.go_to(0, 0)
+        assert scrub_a.slider.value == 1 and not scrub_a.follow.value
+        assert {"/map/kf_000002", "/map/kf_000004", "/map/tail", "/keyframes"} <= set(page_a.hidden)
+        assert "/map/kf_000000" not in page_a.hidden and not page_b.hidden
+        assert app.scrubber.birth_limit(0) == 0 and app.scrubber.birth_limit(1) is None
+        wait_until(lambda: "Keyframe 1 / 3" in scrub_a.info.content and "PSNR" in scrub_a.info.content, 30,
+                   what="keyframe render")
+        assert app.scrubber.pages[1].follow.value and app.scrubber.pages[1].slider.value == 3
+        scrub_a.follow.value = True                          # ticking "Follow latest" un-hides
+        assert app.scrubber.position_of(0) is None and not page_a.hidden and scrub_a.slider.value == 3
+        assert all(h.visible for h in app.map_layer._nodes.values())   # the shared scene was never touched
         assert app.map_layer.policy == "keyframes"          # the page's "Map updates" sets the policy
         app.panels.map_updates.value = "continuous"
         assert app.map_layer.policy == "continuous"
@@ -135,13 +170,15 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert app.map_layer.running_style == "splats"      # and "Draw while running" the style
         app.panels.draw_while_running.value = "points"
         assert app.map_layer.running_style == "points"
-        # exports land in the run folder
-        name, content, path = app.export_files("ply")
-        assert name == "map.ply" and path == tmp_path / "map.ply"
+        # one export path: map and trajectory land in the run folder's exports/
+        path = app.export_panel.export("ply")
+        assert path == tmp_path / "exports" / "map.ply"
         assert len(read_ply(path)["means"]) == 300
-        name, content, path = app.export_files("trajectory")
+        path = app.export_panel.export("trajectory")
+        assert path == tmp_path / "exports" / "trajectory.txt"
         stamps, c2w = read_tum_trajectory(path)
         assert len(stamps) == 6 and np.allclose(c2w[3][:3, 3], [0.3, 0, 0])
+        assert app.export_panel.note.content == "Exports the finished run's map."
     finally:
         app.close()
 
@@ -291,9 +328,6 @@ def test_points_while_running_then_splats(server):
     np.testing.assert_array_equal(chunk.colors, np.round(np.clip(m["colors"][10:100], 0, 1) * 255))
     assert chunk.point_size == pytest.approx(0.01 * WORLD_SCALE)   # the chunk's median radius
     assert not layer.update(snap(1))                               # nothing new, nothing sent
-    layer.show_upto(0)                                             # scrubbing hides point chunks too
-    assert chunk.visible and not layer._nodes["/map/kf_000005"].visible
-    layer.show_upto(None)
     assert layer.update(snap(2, "paused")) and layer.style == "splats"   # pausing: splats again
     assert all(isinstance(h, viser.GaussianSplatHandle) for h in layer._nodes.values())
     assert sum(h.buffer.shape[0] for h in layer._nodes.values()) == 200

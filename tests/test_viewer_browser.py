@@ -176,15 +176,16 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         # slider to the first keyframe through the page
         row = page.locator("label", has_text="Keyframe").first.locator("xpath=ancestor::*[.//input][1]")
         box = row.locator("input.mantine-NumberInput-input")
-        box.fill("0")
+        box.fill("1")                                            # keyframes count from 1
         box.press("Enter")
-        wait_until(lambda: app.panels.keyframe_slider.value == 0, 20, what="slider at 0")
-        assert not app.panels.follow_latest.value
+        scrub = wait_until(lambda: app.scrubber.pages.get(client.client_id), 10, what="the page's scrubber")
+        wait_until(lambda: scrub.position == 0, 20, what="slider at keyframe 1")
+        assert not scrub.follow.value
         # the camera flew to keyframe 0 (the first camera)
         wait_until(lambda: np.allclose(client.camera.position, 0.0, atol=1e-3), 20, what="camera at keyframe 0")
         look(client, (0.5, 0.0, 0.8), (0.5, 0.0, 2.0))
         poll_render(client, lambda img: red(img) > 100 and green(img) < 20, 60, "map at keyframe 0")
-        wait_until(lambda: "Keyframe 1 / 3" in app.panels.keyframe_info.content, 60, what="keyframe panel")
+        wait_until(lambda: "Keyframe 1 / 3" in scrub.info.content, 60, what="keyframe panel")
         # back to the latest map with the checkbox
         page.get_by_label("Follow latest").check()
         poll_render(client, lambda img: green(img) > 100, 60, "latest map again")
@@ -196,9 +197,9 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         poll_render(client, lambda img: red(img) > 100 and green(img) > 100, 60, "our render as background")
         view.mode_dropdown.value = "WebGL splats (fast)"
         assert view._shadow is None
-        # PLY download
+        # PLY download (the Export panel's default format)
         with page.expect_download(timeout=60_000) as download:
-            page.get_by_role("button", name="Download map.ply").click()
+            page.get_by_role("button", name="Export and download").click()
         assert download.value.suggested_filename == "map.ply"
         saved = tmp_path / "downloaded.ply"
         download.value.save_as(saved)
@@ -206,7 +207,7 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         assert "element vertex 10000" in header
         assert [line.split()[-1] for line in header.splitlines() if line.startswith("property")] == PLY_PROPERTIES
         assert len(read_ply(saved)["means"]) == 10000
-        assert (tmp_path / "map.ply").is_file()
+        assert (tmp_path / "exports" / "map.ply").is_file()
         assert page.errors == [] and page.external_requests == []
         page.close()
     finally:

@@ -64,4 +64,6 @@ def _run(args, run) -> int:
     summary = {k: metrics[k] for k in ("frames", "frames_skipped", "frames_lost", "ate_rmse_cm", "psnr", "depth_l1_cm",
                                        "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
+    if not args.quiet:
+        print(f"wrote {run.out}: view it with splatam-viewer --open {run.out}", file=sys.stderr)
     return 0

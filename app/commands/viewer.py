@@ -11,6 +11,7 @@ from pathlib import Path
 
 from app.run_setup import add_run_arguments, setup_from_args
 from app.snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES
+from app.viewer.access import SHARE_MODES
 from splat_core.errors import InputError
 
 DEFAULT_PORT = 8080
@@ -19,7 +20,14 @@ DEFAULT_PORT = 8080
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input", default=None, help="capture folder or .r3d/.zip, or nerfcapture:// for the NeRFCapture "
                    "iPhone app's live stream, recorded to OUT/capture (default: the synthetic demo scene)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1: this machine only)")
+    p.add_argument("--host", default="127.0.0.1",
+                   help="address to listen on (default 127.0.0.1: this machine only; any other address, e.g. "
+                        "0.0.0.0 for the network, needs an access token, printed in the URL)")
+    p.add_argument("--share", default="control", choices=SHARE_MODES,
+                   help="what visitors with the shared URL may do: control (default: pause, export, refine, ...) "
+                        "or view (a view-only page; a second URL with a control token is printed for you)")
+    p.add_argument("--token", default=None,
+                   help="the shared URL's access token (default: generated; needed off loopback, see docs/viewer.md)")
     p.add_argument("--port", type=int, default=None,
                    help=f"port (default {DEFAULT_PORT}, or the next free one; an explicit port must be free; 0 = any)")
     p.add_argument("--out", default=None, help="run folder to write (default: runs/viewer-<time>)")
@@ -59,14 +67,24 @@ def port_is_free(host: str, port: int) -> bool:
     return True
 
 
-def start_server(host: str, port: int | None):
-    """A viser server; an explicitly requested port must be free (viser would silently move on)."""
+def start_server(host: str, port: int | None, access=None):
+    """A viser server; an explicitly requested port must be free (viser would silently move on).
+    `access` (app.viewer.access.Access): its tokens guard every request and websocket."""
+    import contextlib
+
     import viser
 
+    from app.viewer.access import check_bind, tolerate_malformed_messages
+
+    check_bind(host)
+    tolerate_malformed_messages()
     explicit = port is not None and port != 0
     if explicit and not port_is_free(host, port):
         raise InputError(f"--port {port}: {host}:{port} is already in use; choose another port or pass --port 0")
-    server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
+    with access.guard() if access is not None else contextlib.nullcontext():
+        server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
+    if access is not None:
+        access.port = server.get_port()
     if explicit and server.get_port() != port:
         server.stop()
         raise InputError(f"--port {port}: {host}:{port} is already in use")
@@ -86,6 +104,10 @@ def _stop_on_sigterm() -> None:
 
 def main(args) -> int:
     from app.viewer import StaticSource, build_viewer
+    from app.viewer.access import Access
+
+    access = Access.for_host(args.host, share=args.share, token=args.token)
+    first_note = preview = None
 
     worker = stream = None
     if args.open:
@@ -105,16 +127,30 @@ def main(args) -> int:
         if run.live:
             print(run.waiting_message(), file=sys.stderr, flush=True)
             stream = run.source
+        from app.warmup import COMPILING_NOTE, kernels_compiled
+
+        if not kernels_compiled():
+            first_note = COMPILING_NOTE
+            print(COMPILING_NOTE, file=sys.stderr, flush=True)
+        if not run.live:
+            preview = run.source[0]
         worker = SlamWorker(run.start(), start_paused=args.paused)
         source, export_dir = worker, out
         what = "\n".join(run.lines())
 
-    server = start_server(args.host, args.port)
+    server = start_server(args.host, args.port, access)
     app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates,
-                      browser_splats=args.browser_splats, draw_while_running=args.draw_while_running)
-    url = f"http://{args.host}:{server.get_port()}/"
+                      browser_splats=args.browser_splats, draw_while_running=args.draw_while_running,
+                      access=access, first_note=first_note, preview_frame=preview)
+    url = access.url(args.host, server.get_port())
     print(what, file=sys.stderr)
     print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
+    if access.share == "view":
+        print(f"  that URL opens a view-only page; yours, with the controls: "
+              f"{access.url(args.host, server.get_port(), 'control')}", flush=True)
+    elif access.required:
+        print("  anyone with this URL (its token) can control the run; --share view gives a view-only URL",
+              flush=True)
     print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
     if worker is not None:
         worker.start()
@@ -127,6 +163,9 @@ def main(args) -> int:
                 announced = True
                 snap = worker.latest()
                 print(f"SLAM {snap.state}: {snap.message}; the viewer stays up for browsing", flush=True)
+                if snap.state in ("finished", "stopped") and worker.out_dir is not None:
+                    print(f"wrote {worker.out_dir}: view it later with splatam-viewer --open {worker.out_dir}",
+                          flush=True)
     except KeyboardInterrupt:
         pass
     finally:

@@ -1,8 +1,12 @@
 """The web viewer (viser): scene layers, panels and tools built from MapSnapshots; no SLAM logic.
 
     app.py          ViewerApp: wiring and the update loop; build_viewer(server, source)
+    feed.py         SnapshotFeed: the source's snapshots merged with a refined map (the viewer's one source)
     scene.py        the 3D layers: map splats, cameras, trajectories, frustums
-    panels.py       status, plots and the live images panel
+    scrub.py        keyframe scrubbing, per page (its own Keyframes panel and view of the map)
+    panels.py       status, plots and the live images panel; the shared run controls
+    control_gui.py  GUI built only on the pages of visitors who may control the run
+    access.py       access tokens, view-only pages, a websocket reader that drops malformed messages
     novel_view.py   renders the map from the browser's camera (one render thread)
     export_panel.py, video_panel.py, refine_panel.py, measure.py: the tools
 """

@@ -5,10 +5,15 @@
     app.close()
 
 `source` is anything with `latest() -> MapSnapshot | None`: the SlamWorker (which also has
-pause / resume / step_once) or a StaticSource for browsing a finished run. One viewer-update
-thread pulls the latest snapshot at <= 2 Hz and pushes changes to viser (map chunks, frustums,
-trajectories, status, plots, live images). One render thread (RenderService) serves the
-novel-view mode of every client and the keyframe comparison, each slot latest-request-only.
+pause / resume / step_once) or a StaticSource for browsing a finished run. The viewer reads it
+through a SnapshotFeed (feed.py), which puts a refined map in once there is one. One
+viewer-update thread pulls the latest snapshot at <= 2 Hz and pushes changes to viser (map
+chunks, frustums, trajectories, status, plots, live images). One render thread (RenderService)
+serves the novel-view mode of every client and the keyframe panels, each slot latest-request-only.
+
+Every page gets the shared panels and its own Keyframes panel and novel view (scrub.py); pages
+whose visitor may control the run (access.py: all of them unless tokens say otherwise) also get
+the run controls, export, refine and camera-path panels (a ControlGui, control_gui.py).
 """
 
 from __future__ import annotations
@@ -22,21 +27,22 @@ import numpy as np
 import torch
 import viser
 
-from splat_core.camera import Intrinsics, invert_pose
-
-from .assets import WebAssets, apply_theme, load_assets
-from splat_core.metrics import psnr
+from splat_core.camera import Intrinsics
 
 from ..video import gaussians_of
-from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
-from .novel_view import MODES, NovelView, RenderService
 from ..snapshot import MapSnapshot
+from .access import Access, tolerate_malformed_messages
+from .assets import WebAssets, apply_theme, load_assets
+from .control_gui import ControlGui
 from .export_panel import ExportPanel
+from .feed import SnapshotFeed, controls_of
 from .mesh_layer import MeshLayer
 from .measure import MeasureTool
+from .novel_view import MODES, NovelView, RenderService
 from .panels import Panels
 from .refine_panel import RefinePanel
-from .scene import CameraLayer, MapLayer, wxyz_position
+from .scene import CameraLayer, MapLayer
+from .scrub import KeyframeScrubber
 from .video_panel import CameraPathPanel
 
 log = logging.getLogger(__name__)
@@ -58,16 +64,20 @@ class ViewerApp:
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
-                 draw_while_running: str = "splats"):
+                 draw_while_running: str = "splats", access: Access | None = None,
+                 first_note: str | None = None, preview_frame=None):
         self.server = server
-        self.source = source
+        tolerate_malformed_messages()            # a bad websocket message is dropped, the page stays
+        self.feed = SnapshotFeed(source)
+        self.source = self.feed                  # what every part of the viewer reads
+        self.controls = controls_of(source)      # pause / resume / step_once, or None when browsing
+        self.access = access or Access({})
         self.export_dir = Path(export_dir) if export_dir else None
         self.render_backend = render_backend
         self.update_period = 1.0 / update_hz
-        self.scrub_width = scrub_width
         self.novel_full_width, self.novel_low_width = novel_full_width, novel_low_width
         self.assets = assets or load_assets()
-        self.has_controls = hasattr(source, "pause")
+        self.has_controls = self.controls is not None
 
         apply_theme(server, self.assets)
         server.scene.set_up_direction("-y")   # SLAM world = first camera, OpenCV: up is -y
@@ -75,34 +85,37 @@ class ViewerApp:
         server.initial_camera.look_at = (0.0, 0.0, 1.5)
         server.initial_camera.up = (0.0, -1.0, 0.0)
 
-        self.mesh_layer = MeshLayer(server, lambda: self.source.latest())   # owns /map: before any chunk
+        self.control_gui = ControlGui()
+        self.renderer = RenderService()
+        self.mesh_layer = MeshLayer(server, lambda: self.feed.latest(), gui=self.control_gui)   # owns /map: before any chunk
         self.map_layer = MapLayer(server, consolidate_every, consolidate_interval_s, map_updates, browser_splats,
                                   draw_while_running)
-        self.camera_layer = CameraLayer(server, self.assets.colors, self._on_keyframe_click)
+        self.scrubber = KeyframeScrubber(server, self.map_layer, None, self.renderer, self._render_map,
+                                         width=scrub_width, on_change=self._on_page_view_changed)
+        self.camera_layer = CameraLayer(server, self.assets.colors, self.scrubber.on_frustum_click)
+        self.scrubber.camera_layer = self.camera_layer
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
-                             draw_while_running)
-        self.refine_panel = RefinePanel(server, source, self.wake)
-        self.source = self.refine_panel.source   # the same snapshots, with the refined map once refined
-        self.export_panel = ExportPanel(server, self.source, export_dir=self.export_dir, folder=self.panels.export_folder,
+                             draw_while_running, controls=self.control_gui)
+        self.panels.first_note = first_note
+        if preview_frame is not None:
+            self.panels.show_preview(preview_frame.color, preview_frame.depth, preview_frame.index)
+        self.export_panel = ExportPanel(server, self.feed, export_dir=self.export_dir, gui=self.control_gui,
                                         mesh=self.mesh_layer)
-        self.video_panel = CameraPathPanel(server, self.source.latest, export_dir=self.export_dir,
-                                           render_backend=render_backend)
-        self.measure = MeasureTool(server, self.source.latest, render_backend)
-        self.renderer = RenderService()
+        self.refine_panel = RefinePanel(server, self.feed, gui=self.control_gui)
+        self.feed.on_refined(self.wake)
+        self.video_panel = CameraPathPanel(server, self.feed.latest, export_dir=self.export_dir,
+                                           render_backend=render_backend, gui=self.control_gui)
+        self.measure = MeasureTool(server, self.feed.latest, render_backend)
         self.renderer.start()
 
         self.novel_views: dict[int, NovelView] = {}
-        self._scrub: int | None = None            # keyframe position shown, None = latest
         self._snapshot: MapSnapshot | None = None
         self.applied: MapSnapshot | None = None
-        self._keyframe_view_of: tuple | None = None   # (position, frame) last sent to the panel
         self._render_cache: tuple | None = None   # (map, birth limit, Gaussians born up to it)
-        self._programmatic = 0
         self._lock = threading.RLock()
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._reapply = threading.Event()
-        self._last_state = None
         self._camera_placed = False
         self.updates = 0
         self.first_map_at: float | None = None
@@ -123,18 +136,13 @@ class ViewerApp:
         p.map_updates.on_update(self._on_map_updates)
         p.browser_splats.on_update(self._on_browser_splats)
         p.draw_while_running.on_update(self._on_draw_while_running)
-        p.keyframe_slider.on_update(self._on_slider)
-        p.follow_latest.on_update(self._on_follow)
-        p.export_ply_button.on_click(lambda ev: self._export(ev, "ply"))
-        p.export_traj_button.on_click(lambda ev: self._export(ev, "trajectory"))
 
     def _control(self, action: str) -> None:
-        getattr(self.source, action)()
-        p = self.panels
-        with self.server.atomic():   # immediate feedback; the next snapshot confirms it
-            p.pause_button.disabled = action == "pause" or action == "step_once"
-            p.resume_button.disabled = action == "resume"
-            p.step_button.disabled = action == "resume"
+        getattr(self.controls, action)()
+        p = self.panels   # immediate feedback; the next snapshot confirms it
+        p.pause_button.disabled = action == "pause" or action == "step_once"
+        p.resume_button.disabled = action == "resume"
+        p.step_button.disabled = action == "resume"
         self.wake()
 
     def _on_map_updates(self, _event) -> None:
@@ -152,21 +160,42 @@ class ViewerApp:
         self._reapply.set()
         self.wake()
 
+    def role(self, client) -> str:
+        return self.access.role(client)
+
     def _on_client_connect(self, client: viser.ClientHandle) -> None:
+        if self.role(client) == "control":
+            self.control_gui.attach(client)
+        else:
+            with client.gui.add_folder("View only", order=0.5):
+                client.gui.add_markdown("This page is **view only**: the run's controls, export and refine "
+                                        "are for the person running the viewer.")
+        self.scrubber.attach(client)
         with client.gui.add_folder("Novel view", order=5):
-            dropdown = client.gui.add_dropdown("View", tuple(MODES), initial_value=next(iter(MODES)))
-        view = NovelView(client, self.renderer, self._render_map, full_width=self.novel_full_width,
-                         low_width=self.novel_low_width)
+            dropdown = client.gui.add_dropdown("View", tuple(MODES), initial_value=next(iter(MODES)),
+                                               hint="WebGL splats, or our SLAM renderer from your camera "
+                                                    "(this page only)")
+        cid = client.client_id
+        view = NovelView(client, self.renderer,
+                         lambda intr, w2c: self._render_map(intr, w2c, birth_limit=self.scrubber.birth_limit(cid)),
+                         full_width=self.novel_full_width, low_width=self.novel_low_width)
         view.mode_dropdown = dropdown
         dropdown.on_update(lambda _: view.set_mode(MODES[dropdown.value]))
         with self._lock:
-            self.novel_views[client.client_id] = view
+            self.novel_views[cid] = view
 
     def _on_client_disconnect(self, client: viser.ClientHandle) -> None:
+        self.control_gui.detach(client.client_id)
+        self.scrubber.detach(client.client_id)
         with self._lock:
             view = self.novel_views.pop(client.client_id, None)
         if view is not None:
             view.close()
+
+    def _on_page_view_changed(self, client_id: int) -> None:
+        view = self.novel_views.get(client_id)
+        if view is not None:
+            view.refresh()
 
     # ------------------------------------------------------------------ update loop
     def wake(self) -> None:
@@ -184,9 +213,11 @@ class ViewerApp:
 
     def update_once(self) -> bool:
         """Apply the latest snapshot if it is new; returns True when something changed."""
-        snap = self.source.latest()
+        snap = self.feed.latest()
         reapply = self._reapply.is_set()
         self._reapply.clear()
+        if snap is not None:
+            self.refine_panel.sync(snap)     # every tick: the button follows the job's end too
         if snap is None or (self._snapshot is not None and snap.version == self._snapshot.version
                             and not reapply):
             return False
@@ -196,7 +227,7 @@ class ViewerApp:
         # Consolidate (refresh every chunk) when the run pauses, ends, or in browse mode.
         force = state_changed and snap.state in ("paused", "finished", "stopped", "browse")
         # The 3D scene (map, cameras, trajectories) follows the map update policy, and shows at once
-        # when tracking is lost or found: any scene message makes viser's page redraw (docs/viewer-notes.md §3).
+        # when tracking is lost or found: any scene message makes viser's page redraw (docs/viewer.md).
         if force or self.map_layer.follows(snap) or snap.tracking_lost != self.camera_layer.lost_shown:
             if self.map_layer.update(snap, force_consolidate=force) and self.first_map_at is None \
                     and snap.num_gaussians:
@@ -210,9 +241,10 @@ class ViewerApp:
         p = self.panels
         p.update_status(snap)
         p.update_plots(snap)
+        self.export_panel.follow(snap)
         if snap.live is not None and (prev is None or prev.live is not snap.live):
             p.update_live(snap)
-        self._update_keyframe_slider(snap)
+        self.scrubber.update(snap)
         self.mesh_layer.sync(snap)
         self.updates += 1
         self.applied = snap      # fully pushed to viser (tests and the benchmark wait on this)
@@ -228,115 +260,6 @@ class ViewerApp:
         self.server.initial_camera.look_at = tuple(centre)
         self.server.initial_camera.position = tuple(c2w0[:3, 3] + back)
 
-    # ------------------------------------------------------------------ keyframe scrubbing
-    def _update_keyframe_slider(self, snap: MapSnapshot) -> None:
-        K = len(snap.keyframes)
-        p = self.panels
-        if K == 0:
-            return
-        slider = p.keyframe_slider
-        self._programmatic += 1
-        try:
-            if slider.max != max(K - 1, 1):
-                slider.max = max(K - 1, 1)
-            slider.disabled = K < 2
-            if p.follow_latest.value and slider.value != K - 1:
-                slider.value = K - 1
-        finally:
-            self._programmatic -= 1
-        if p.follow_latest.value and self._keyframe_view_of != (K - 1, snap.keyframes[-1].frame_index):
-            self._request_keyframe_view(K - 1, snap)
-
-    def _on_follow(self, _event) -> None:
-        if self._programmatic:
-            return
-        if self.panels.follow_latest.value:
-            self.scrub_to(None)
-
-    def _on_slider(self, event) -> None:
-        if self._programmatic:
-            return
-        snap = self._snapshot
-        if snap is None or not snap.keyframes:
-            return
-        k = int(self.panels.keyframe_slider.value)
-        K = len(snap.keyframes)
-        if k >= K - 1 and self.panels.follow_latest.value:
-            self.scrub_to(None)
-            return
-        self.scrub_to(min(k, K - 1), client=getattr(event, "client", None))
-
-    def scrub_to(self, k: int | None, client=None) -> None:
-        """Show the map as it was at keyframe position k (None: follow the latest map)."""
-        snap = self._snapshot
-        with self._lock:
-            self._scrub = k
-        if k is not None and self.panels.follow_latest.value:
-            self._programmatic += 1
-            try:
-                self.panels.follow_latest.value = False
-            finally:
-                self._programmatic -= 1
-        self.map_layer.show_upto(k)
-        if snap is None or not snap.keyframes:
-            return
-        pos = len(snap.keyframes) - 1 if k is None else k
-        kf = snap.keyframes[pos]
-        self.camera_layer.select(None if k is None else kf.frame_index, hide=k is not None)
-        if k is not None:
-            clients = [client] if client is not None else list(self.server.get_clients().values())
-            for c in clients:
-                self._fly_to(c, kf.c2w)
-        for view in list(self.novel_views.values()):
-            view.refresh()
-        self._request_keyframe_view(pos, snap)
-
-    def _request_keyframe_view(self, pos: int, snap: MapSnapshot) -> None:
-        self._keyframe_view_of = (pos, snap.keyframes[pos].frame_index)
-        self.renderer.submit("keyframe", lambda: self._render_keyframe(pos, snap))
-
-    def _render_keyframe(self, pos: int, snap: MapSnapshot) -> None:
-        kf = snap.keyframes[pos]
-        title = f"Keyframe {pos + 1} / {len(snap.keyframes)} (frame #{kf.frame_index} )"
-        if kf.color is None or snap.intrinsics is None:
-            self.panels.keyframe_info.content = title
-            self.panels.keyframe_image.image = kf.thumbnail
-            return
-        intr = snap.intrinsics
-        if intr.width > self.scrub_width:
-            intr = intr.scaled(self.scrub_width, max(1, round(intr.height * self.scrub_width / intr.width)))
-        out = self._render_map(intr, invert_pose(kf.c2w), snap=snap, birth_limit=kf.frame_index)
-        captured = np.asarray(kf.color, np.float32)
-        if captured.shape[1] != intr.width:
-            import cv2
-            captured = cv2.resize(captured, (intr.width, intr.height), interpolation=cv2.INTER_AREA)
-        tiles = [(to_uint8(captured), "captured")]
-        text = title
-        if out is not None:
-            color = out.color.detach().cpu().numpy()
-            value = psnr(color, captured)
-            tiles.append((to_uint8(color), f"render {value:.1f} dB"))
-            depth = out.depth.detach().cpu().numpy()
-            tiles.append((colorize_depth(depth, depth_max_of(kf.depth, depth)), "render depth"))
-            text += f"  \nPSNR of our render from this pose: **{value:.2f} dB**"
-        self.panels.keyframe_image.image = mosaic([tiles], tile_width=200)
-        self.panels.keyframe_info.content = text
-
-    def _on_keyframe_click(self, event, frame_index: int) -> None:
-        snap = self._snapshot
-        if snap is None:
-            return
-        frames = [kf.frame_index for kf in snap.keyframes]
-        if frame_index in frames and event.client is not None:
-            self._fly_to(event.client, snap.keyframes[frames.index(frame_index)].c2w)
-
-    @staticmethod
-    def _fly_to(client, c2w: np.ndarray) -> None:
-        wxyz, pos = wxyz_position(c2w)
-        with client.atomic():
-            client.camera.wxyz = wxyz
-            client.camera.position = pos
-
     # ------------------------------------------------------------------ our renderer
     def _render_map(self, intr: Intrinsics, w2c: np.ndarray, snap: MapSnapshot | None = None,
                     birth_limit: int | None = None):
@@ -346,8 +269,6 @@ class ViewerApp:
         snap = snap or self._snapshot
         if snap is None or snap.num_gaussians == 0:
             return None
-        if birth_limit is None and self._scrub is not None and snap.keyframes:
-            birth_limit = snap.keyframes[min(self._scrub, len(snap.keyframes) - 1)].frame_index
         gaussians = gaussians_of(snap.gaussians)
         if birth_limit is not None:     # the map as it was at a keyframe: one selection per map and keyframe
             key = (snap.map_version, id(snap.gaussians), birth_limit)
@@ -359,30 +280,6 @@ class ViewerApp:
             return Renderer(snap.near_plane, self.render_backend).render_visible(
                 gaussians, intr, np.asarray(w2c, np.float32))
 
-    # ------------------------------------------------------------------ export
-    def export_files(self, what: str) -> tuple[str, bytes, Path | None]:
-        """(file name, content, path written in the export folder or None)."""
-        from splat_core.io.atomic import write_bytes_atomic
-        from splat_core.io.ply import ply_bytes
-
-        snap = self.source.latest()
-        if what == "ply":
-            name, content = "map.ply", ply_bytes(snap.gaussians)
-        else:
-            name, content = "trajectory.txt", trajectory_bytes(snap)
-        path = None
-        if self.export_dir is not None:
-            path = write_bytes_atomic(self.export_dir / name, content)
-        return name, content, path
-
-    def _export(self, event, what: str) -> None:
-        name, content, path = self.export_files(what)
-        where = f"written to `{path}`" if path else "not written (no run folder)"
-        self.panels.export_info.content = f"{name}: {len(content):,} bytes, {where}"
-        if event.client is not None:
-            event.client.send_file_download(name, content, save_immediately=True)
-            event.client.add_notification(f"Exported {name}", f"{where}", auto_close_seconds=8.0)
-
     # ------------------------------------------------------------------ lifecycle
     def close(self) -> None:
         self.video_panel.cancel()
@@ -392,18 +289,6 @@ class ViewerApp:
         self.renderer.stop()
         self._thread.join(timeout=5)
         self.renderer.join(timeout=30)
-
-
-def trajectory_bytes(snap: MapSnapshot) -> bytes:
-    """The estimated trajectory as TUM text (c2w, the input's timestamps)."""
-    import tempfile
-
-    from splat_core.io.trajectory import write_tum_trajectory
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "trajectory.txt"
-        write_tum_trajectory(path, snap.timestamps[: len(snap.estimated_c2w)], snap.estimated_c2w)
-        return path.read_bytes()
 
 
 def build_viewer(server: viser.ViserServer, source, **kwargs) -> ViewerApp:

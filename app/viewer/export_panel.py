@@ -1,10 +1,11 @@
-"""The viewer's export panel: the current map (live or browsed) in any `splatam export` format,
-offered for download and written into the export folder.
+"""The viewer's one export path: the current map (live or browsed) in any `splatam export` format,
+or the estimated trajectory (TUM), offered for download and written into the export folder.
 
 The map comes from the latest MapSnapshot (immutable numpy copies), never from the live
 optimiser's tensors, and the export runs on its own thread, so SLAM goes on beside it. Files go
 to EXPORT_DIR/exports/map.<suffix> (a subfolder, so a browsed run's own map.ply is never
-replaced), or to a temporary folder when the viewer has no export folder.
+replaced), or to a temporary folder when the viewer has no export folder. The panel is built on
+the pages of visitors who may control the run (`gui`: a ControlGui), not on view-only pages.
 """
 
 from __future__ import annotations
@@ -23,32 +24,50 @@ from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
           "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page",
-          "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
+          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
+
+STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
+               "starting": "Exports the map as it is now; SLAM keeps running.",
+               "paused": "Exports the map as it is now (SLAM is paused).",
+               "finished": "Exports the finished run's map.",
+               "stopped": "Exports the map of the stopped run.",
+               "error": "Exports the map as SLAM left it.",
+               "browse": "Exports the map being browsed."}
 
 
 class ExportPanel:
-    def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, folder=None,
-                 mesh=None):
+    def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, gui=None,
+                 order: float = 4, mesh=None):
         self.source = source                # latest() -> MapSnapshot | None
         self.mesh = mesh                    # a MeshLayer: offers the "mesh" entry
         self.export_dir = Path(export_dir) / "exports" if export_dir else None
         self._busy = threading.Lock()
         self.exports = 0
-        gui = server.gui
-        with folder if folder is not None else gui.add_folder("Export"):   # the panel's Export folder
+        gui = gui if gui is not None else server.gui
+        where = f"into `{self.export_dir}`" if self.export_dir else "into a temporary folder"
+        with gui.add_folder("Export", order=order):
             self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in self.formats),
-                                           initial_value=LABELS[FORMATS[0]])
-            self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD)
-            self.info = gui.add_markdown("Exports the map as it is now; SLAM keeps running.")
+                                           initial_value=LABELS[FORMATS[0]],
+                                           hint="The map in a splat format, or the estimated trajectory")
+            self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD,
+                                         hint=f"Downloads the file and writes it {where}")
+            self.note = gui.add_markdown(STATE_NOTES["running"])
+            self.info = gui.add_markdown(f"Files are also written {where}.")
         self.button.on_click(self._on_click)
 
     @property
     def formats(self) -> tuple:
-        return FORMATS + (("mesh",) if self.mesh is not None else ())
+        return FORMATS + ("trajectory",) + (("mesh",) if self.mesh is not None else ())
 
     @property
     def selected_format(self) -> str:
         return next(f for f in self.formats if LABELS[f] == self.format.value)
+
+    def follow(self, snap) -> None:
+        """The note follows the run's state (running, paused, finished, browsing)."""
+        note = STATE_NOTES.get(snap.state, STATE_NOTES["running"])
+        if self.note.content != note:
+            self.note.content = note
 
     def _on_click(self, event) -> None:
         threading.Thread(target=self._export_and_send, args=(event.client, self.selected_format),
@@ -62,8 +81,10 @@ class ExportPanel:
         """Export the latest snapshot's map as `fmt`; the path written, or None while another
         export is running."""
         snap = self.source.latest()
-        if snap is None or snap.num_gaussians == 0:
+        if snap is None or (fmt not in ("trajectory", "mesh") and snap.num_gaussians == 0):
             raise InputError("there is no map to export yet")
+        if fmt == "trajectory" and len(snap.estimated_c2w) == 0:
+            raise InputError("there is no trajectory to export yet")
         if not self._busy.acquire(blocking=False):
             return None
         if fmt == "mesh":
@@ -79,13 +100,28 @@ class ExportPanel:
                 self._busy.release()
         try:
             self.button.disabled = True
-            self.info.content = f"Exporting {snap.num_gaussians:,} Gaussians as {LABELS[fmt]}…"
             folder = self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-"))
-            path = export_map(dict(snap.gaussians), fmt, folder / f"map{EXPORT_SUFFIXES[fmt]}")
+            if fmt == "trajectory":
+                from splat_core.io.atomic import write_bytes_atomic
+                path = write_bytes_atomic(folder / "trajectory.txt", trajectory_bytes(snap))
+                what = f"{len(snap.estimated_c2w)} poses"
+            else:
+                self.info.content = f"Exporting {snap.num_gaussians:,} Gaussians as {LABELS[fmt]}…"
+                path = export_map(dict(snap.gaussians), fmt, folder / f"map{EXPORT_SUFFIXES[fmt]}")
+                what = f"{snap.num_gaussians:,} Gaussians"
             self.exports += 1
-            self.info.content = (f"{path.name}: {snap.num_gaussians:,} Gaussians, "
-                                 f"{path.stat().st_size:,} bytes, written to `{path}`")
+            self.info.content = f"{path.name}: {what}, {path.stat().st_size:,} bytes, written to `{path}`"
             return path
         finally:
             self.button.disabled = False
             self._busy.release()
+
+
+def trajectory_bytes(snap) -> bytes:
+    """The estimated trajectory as TUM text (c2w, the input's timestamps)."""
+    from splat_core.io.trajectory import write_tum_trajectory
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "trajectory.txt"
+        write_tum_trajectory(path, snap.timestamps[: len(snap.estimated_c2w)], snap.estimated_c2w)
+        return path.read_bytes()

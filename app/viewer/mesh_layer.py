@@ -30,7 +30,7 @@ MAP_ROOT = "/map"
 
 
 class MeshLayer:
-    def __init__(self, server: viser.ViserServer, latest, *, order: int = 7):
+    def __init__(self, server: viser.ViserServer, latest, *, order: int = 7, gui=None):
         self.server, self.latest = server, latest
         self.map_root = server.scene.add_frame(MAP_ROOT, show_axes=False)
         self.mesh = None                 # trimesh.Trimesh once built
@@ -39,7 +39,7 @@ class MeshLayer:
         self._mesh_of: Path | None = None
         self._lock = threading.Lock()
         self._thread: threading.Thread | None = None
-        gui = server.gui
+        gui = gui if gui is not None else server.gui   # the viewer's ControlGui: controlling pages only
         with gui.add_folder("Mesh", order=order, expand_by_default=False):
             self.button = gui.add_button("Build mesh", icon=viser.Icon.CUBE, disabled=True)
             self.show = gui.add_checkbox("Show mesh instead of splats", initial_value=True, disabled=True)

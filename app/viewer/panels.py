@@ -1,7 +1,9 @@
-"""The GUI panel: run controls, status, plots, live images, keyframe scrubbing, export, help.
+"""The GUI panels: status, plots, live images and help on every page; the run controls on the pages
+of visitors who may control the run (a ControlGui). Keyframes: scrub.py; export: export_panel.py.
 
-Builds the shared (server-scoped) GUI and updates it from snapshots. Callbacks are attached
-by the ViewerApp; this module only lays out widgets and formats what they show.
+Callbacks are attached by the ViewerApp; this module only lays out widgets and formats what they show.
+The plots' x axis is the frame number (uPlot's x scale with time off; by default it reads the x values
+as UNIX times).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),
-    ("ate_cm", "ATE so far (cm)", "#28aa5a"),
+    ("ate_cm", "ATE (cm, up to each frame)", "#28aa5a"),
     ("psnr", "PSNR of the live render (dB)", "#3c6ee6"),
     ("seconds", "Seconds per frame", "#888888"),
 )
@@ -25,18 +27,21 @@ def _placeholder(h: int = 120, w: int = 320) -> np.ndarray:
     return np.full((h, w, 3), 40, np.uint8)
 
 
-def status_markdown(snap: MapSnapshot) -> str:
+def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
     if snap.state == "browse":
         lines = [f"**Browsing** {snap.message}", f"Gaussians: **{snap.num_gaussians:,}**",
                  f"Poses: {len(snap.estimated_c2w)} · keyframes: {len(snap.keyframes)}"]
         if snap.ate_cm is not None:
             lines.append(f"ATE: {snap.ate_cm:.2f} cm")
         return "  \n".join(lines)
+    if snap.state in ("starting", "running") and snap.num_gaussians == 0:   # no map yet (live: mapping lags)
+        return "  \n".join(first_frame_lines(snap, first_note))
     spf = f"{snap.seconds_per_frame:.2f} s/frame" if snap.seconds_per_frame is not None else "– s/frame"
-    ate = f"{snap.ate_cm:.2f} cm" if snap.ate_cm is not None else "n/a"
-    lines = [f"Frame **{snap.processed} / {snap.total_frames}** · {snap.state}",
+    ate = f"{snap.ate_cm:.2f} cm" if snap.ate_cm is not None else "n/a (no reference poses)"
+    ended = snap.state in ("finished", "stopped", "error")
+    lines = [f"Frame **{snap.processed} / {snap.total_frames}** · {STATE_WORDS.get(snap.state, snap.state)}",
              f"{spf} · Gaussians **{snap.num_gaussians:,}**",
-             f"ATE so far: {ate} · keyframes: {len(snap.keyframes)}"]
+             f"{'ATE' if ended else 'ATE so far'}: {ate} · keyframes: {len(snap.keyframes)}"]
     if snap.skipped_frames:
         index, reason = snap.skipped_frames[-1]
         lines.append(f"⚠ {len(snap.skipped_frames)} bad frame(s) skipped; last: {reason}")
@@ -53,20 +58,45 @@ def status_markdown(snap: MapSnapshot) -> str:
     return "  \n".join(lines)
 
 
+STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused (Resume or Step to go on)",
+               "finished": "**finished**: the run folder is written", "stopped": "stopped: the run folder is written",
+               "error": "**error**"}
+
+
+def first_frame_lines(snap: MapSnapshot, first_note: str | None = None) -> list[str]:
+    """What the page says before the first frame is done (it takes a minute on a first run)."""
+    lines = [f"**Processing frame {max(snap.processed, 1)} / {snap.total_frames or '…'}** · {snap.state}"]
+    if first_note:
+        lines.append(f"⏳ {first_note}")
+    lines.append(snap.message or "the first frame builds the map from scratch; the 3D view fills in after it")
+    return lines
+
+
+def live_caption(snap: MapSnapshot) -> str:
+    """Page text above the live images (labels drawn into the images were unreadable when scaled)."""
+    live = snap.live
+    if live is None:
+        return "Waiting for the first frame…"
+    top = f"**Frame #{live.frame_index}**. Top: captured colour · captured depth"
+    if live.render_color is None:
+        return top + " (our render of the map appears once there is a map)."
+    psnr = f" ({live.psnr:.1f} dB PSNR)" if live.psnr is not None else ""
+    return (top + " · error (|render - captured| x3, bright = wrong).  \n"
+            f"Bottom: our render from the tracked pose{psnr} · its depth · silhouette (white = covered).")
+
+
 def live_mosaic(snap: MapSnapshot) -> np.ndarray | None:
     live = snap.live
     if live is None:
         return None
     dmax = depth_max_of(live.depth)
-    top = [(to_uint8(live.color), f"captured #{live.frame_index}"),
-           (colorize_depth(live.depth, dmax), "captured depth")]
+    top = [(to_uint8(live.color), ""), (colorize_depth(live.depth, dmax), "")]
     if live.render_color is not None:
         diff = np.abs(np.asarray(live.render_color) - _resize_like(live.color, live.render_color))
-        top.append((to_uint8(np.clip(diff * 3.0, 0, 1)), "|error| x3"))
-        psnr = f"render {live.psnr:.1f} dB" if live.psnr is not None else "render"
-        bottom = [(to_uint8(live.render_color), psnr),
-                  (colorize_depth(live.render_depth, dmax), "render depth"),
-                  (colorize_silhouette(live.render_alpha), "silhouette")]
+        top.append((to_uint8(np.clip(diff * 3.0, 0, 1)), ""))
+        bottom = [(to_uint8(live.render_color), ""),
+                  (colorize_depth(live.render_depth, dmax), ""),
+                  (colorize_silhouette(live.render_alpha), "")]
         return mosaic([top, bottom], tile_width=200)
     return mosaic([top], tile_width=200)
 
@@ -81,69 +111,75 @@ def _resize_like(img: np.ndarray, like: np.ndarray) -> np.ndarray:
 
 
 class Panels:
+    """The shared panels (status, live frame, plots, help: every page) and the run controls (built
+    on `controls`, a ControlGui: the pages of visitors who may control the run)."""
+
     def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
-                 draw_while_running: str = "splats"):
+                 draw_while_running: str = "splats", controls=None):
         gui = server.gui
         self.server = server
         with gui.add_folder("Run", order=0):
             self.status = gui.add_markdown("Starting…")
             self.progress = gui.add_progress_bar(0.0, animated=False)
-            self.pause_button = gui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE,
-                                               visible=has_controls)
-            self.resume_button = gui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY,
-                                                visible=has_controls, disabled=True)
-            self.step_button = gui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT,
-                                              visible=has_controls, disabled=True)
             self.frame_text = gui.add_text("Frames processed", "0", disabled=True)
-            self.map_updates = gui.add_dropdown(
+        cgui = controls if controls is not None else gui
+        with cgui.add_folder("Run controls (shared by every visitor)", order=0.5, visible=has_controls):
+            self.pause_button = cgui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE, visible=has_controls,
+                                                hint="Pause SLAM after this frame (for every visitor)")
+            self.resume_button = cgui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY,
+                                                 visible=has_controls, disabled=True)
+            self.step_button = cgui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT,
+                                               visible=has_controls, disabled=True)
+            self.map_updates = cgui.add_dropdown(
                 "Map updates", MAP_UPDATE_POLICIES, initial_value=map_updates, visible=has_controls,
                 hint="When the 3D view (splats, current camera, trajectory) follows SLAM: at each "
                      "keyframe, also between keyframes (costs a software-rendering browser much CPU), "
                      "or only when paused or finished")
-            self.browser_splats = gui.add_number(
+            self.browser_splats = cgui.add_number(
                 "Splats while running", browser_splats or 0, min=0, step=1000, visible=has_controls,
-                hint="0: the whole map. N: while SLAM runs, a thinned preview of at most about N larger "
-                     "splats (the whole map when paused or finished), for a browser that draws WebGL in "
+                hint="0 (the default): the whole map. N: while SLAM runs, a thinned preview of at most about "
+                     "N larger splats (the whole map when paused or finished), for a browser that draws WebGL in "
                      "software on the machine running SLAM")
-            self.draw_while_running = gui.add_dropdown(
+            self.draw_while_running = cgui.add_dropdown(
                 "Draw while running", RUNNING_STYLES, initial_value=draw_while_running, visible=has_controls,
                 hint="How the growing map is drawn while SLAM runs: splats, or a point per Gaussian (a fifth "
                      "or less of the cost for a browser that draws WebGL in software); splats when "
                      "paused or finished")
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
+            self.live_caption = gui.add_markdown("Waiting for the first frame…")
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
-        with gui.add_folder("Keyframes", order=2):
-            self.keyframe_slider = gui.add_slider("Keyframe", min=0, max=1, step=1, initial_value=0,
-                                                  disabled=True)
-            self.follow_latest = gui.add_checkbox("Follow latest", initial_value=True)
-            self.keyframe_info = gui.add_markdown("No keyframes yet.")
-            self.keyframe_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
         with gui.add_folder("Plots", order=3, expand_by_default=has_controls):
             self.plots = {}
             for key, title, colour in PLOTS:
                 self.plots[key] = gui.add_uplot(
                     data=(np.zeros(1), np.zeros(1)),
                     series=({"label": "frame"}, {"label": title, "stroke": colour, "width": 2}),
+                    scales={"x": {"time": False}}, axes=({"label": "frame"}, {}),
                     title=title, aspect=2.5)
-        with gui.add_folder("Export", order=4) as self.export_folder:
-            self.export_ply_button = gui.add_button("Download map.ply", icon=viser.Icon.DOWNLOAD)
-            self.export_traj_button = gui.add_button("Download trajectory (TUM)", icon=viser.Icon.ROUTE)
-            self.export_info = gui.add_markdown("Exports are also written into the run folder.")
         with gui.add_folder("Help", order=10, expand_by_default=False):
             gui.add_markdown(help_markdown)
 
     # ------------------------------------------------------------------ updates
+    first_note: str | None = None     # shown until frame 1 is done (app.warmup.COMPILING_NOTE on a first run)
+
+    def show_preview(self, color: np.ndarray, depth: np.ndarray, frame_index: int = 0) -> None:
+        """The capture's first images at once, before SLAM has processed them."""
+        self.live_image.image = mosaic([[(to_uint8(color), ""), (colorize_depth(depth), "")]], tile_width=200)
+        self.live_caption.content = (f"**Frame #{frame_index}** as captured: colour · depth. SLAM is processing "
+                                     "it; our render of the map appears below it after the first frame.")
+
     def update_status(self, snap: MapSnapshot) -> None:
-        self.status.content = status_markdown(snap)
+        self.status.content = status_markdown(snap, self.first_note)
         total = max(snap.total_frames, 1)
         self.progress.value = 100.0 if snap.state == "browse" else 100.0 * snap.processed / total
         self.frame_text.value = str(max(snap.processed, 0))
         running = snap.state in ("starting", "running")
         paused = snap.state == "paused"
-        self.pause_button.disabled = not running
-        self.resume_button.disabled = not paused
-        self.step_button.disabled = not paused
+        for button, disabled in ((self.pause_button, not running), (self.resume_button, not paused),
+                                 (self.step_button, not paused)):
+            if button.disabled != disabled:
+                button.disabled = disabled
 
     def update_plots(self, snap: MapSnapshot) -> None:
         h = snap.history
@@ -160,3 +196,6 @@ class Panels:
         img = live_mosaic(snap)
         if img is not None:
             self.live_image.image = img
+        caption = live_caption(snap)
+        if self.live_caption.content != caption:
+            self.live_caption.content = caption

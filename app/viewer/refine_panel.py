@@ -1,20 +1,21 @@
 """The viewer's Refine panel: refine a finished run's map in a background thread, then show it.
 
-    panel = RefinePanel(server, source, wake)   # in ViewerApp; the viewer then reads panel.source
-    panel.start()                                # what the "Refine" button does
+    panel = RefinePanel(server, feed, gui=controls)   # in ViewerApp; feed: the viewer's SnapshotFeed
+    panel.sync(snap)                                   # every applied snapshot: enables the button
+    panel.start()                                      # what the "Refine" button does
 
 The button is enabled once SLAM has finished into a run folder (`--out`) or when browsing a run
 folder. The job (splat_core.refine.RefineJob: the same as `splatam refine`, so it resumes from and
-leaves the same files) runs in its own thread; the panel shows its progress, and `panel.source`
-hands the viewer snapshots whose Gaussians are the map being refined: a copy every
-`publish_seconds` while it runs (so the browser shows the map sharpening), the refined map once
-it has finished.
+leaves the same files) runs in its own thread; the panel shows its progress and publishes the map being refined into
+the viewer's snapshot feed (feed.py): a copy every `publish_seconds` while it runs (so the
+browser shows the map sharpening), the refined map once it has finished. The feed, not this
+panel, owns the viewer's data source. The panel is built on the pages of visitors who may
+control the run (`gui`: a ControlGui).
 Closing the viewer mid-refine stops the job at the next iteration and checkpoints it.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import threading
 import time
@@ -25,66 +26,27 @@ import viser
 from splat_core.errors import InputError
 
 from ..snapshot import MapSnapshot, VersionArrays
+from .feed import READY_STATES
 
 log = logging.getLogger(__name__)
 
-READY_STATES = ("finished", "browse")
-
-
-class RefinedSource:
-    """The viewer's snapshot source: the wrapped one's snapshots, with the refined map once there is one.
-
-    Versions are renumbered here (one counter over both streams), so the viewer sees a new snapshot
-    whenever either the wrapped snapshot or the refined map changes. Anything else (pause, resume,
-    step_once of the SLAM worker) is the wrapped source's."""
-
-    def __init__(self, panel: "RefinePanel", base):
-        self._panel, self._base = panel, base
-        self._key = None
-        self._snapshot: MapSnapshot | None = None
-        self._versions = self._map_versions = 0
-        self._map_key = None
-
-    def __getattr__(self, name):
-        return getattr(self._base, name)
-
-    def latest(self) -> MapSnapshot | None:
-        base = self._base.latest()
-        if base is None:
-            return None
-        self._panel.sync(base)
-        refined, generation = self._panel.refined()
-        use = refined is not None and base.state in READY_STATES
-        key = (base.version, generation if use else 0)
-        if key != self._key:
-            map_key = (base.map_version, generation if use else 0)
-            if map_key != self._map_key:
-                self._map_key, self._map_versions = map_key, self._map_versions + 1
-            self._key, self._versions = key, self._versions + 1
-            changes = dict(version=self._versions, map_version=self._map_versions)
-            if use:
-                changes["gaussians"] = refined
-            self._snapshot = dataclasses.replace(base, **changes)
-        return self._snapshot
-
 
 class RefinePanel:
-    def __init__(self, server: viser.ViserServer, source, wake=lambda: None, *, iterations: int = 1000,
+    def __init__(self, server: viser.ViserServer, feed, *, gui=None, iterations: int = 1000,
                  order: int = 6, update_seconds: float = 0.5, publish_seconds: float = 15.0):
-        self.source = RefinedSource(self, source)
-        self._wake, self._update_seconds, self._publish_seconds = wake, update_seconds, publish_seconds
-        gui = server.gui
+        self.feed = feed
+        self._update_seconds, self._publish_seconds = update_seconds, publish_seconds
+        gui = gui if gui is not None else server.gui
         with gui.add_folder("Refine", order=order, expand_by_default=False):
             self.iterations = gui.add_number("Iterations", initial_value=iterations, min=1, step=100)
             self.resolution = gui.add_dropdown("Resolution", ("capture", "working"), initial_value="capture")
-            self.button = gui.add_button("Refine", icon=viser.Icon.SPARKLES, disabled=True)
+            self.button = gui.add_button("Refine", icon=viser.Icon.SPARKLES, disabled=True,
+                                         hint="Optimise the finished map over all keyframes (as splatam refine); "
+                                              "the page shows it sharpening")
             self.progress = gui.add_progress_bar(0.0, animated=False, visible=False)
             self.info = gui.add_markdown("Refine the finished map over all keyframes (needs a run folder).")
         self.button.on_click(lambda _: self.start())
-        self._lock = threading.Lock()
         self._run_dir: Path | None = None
-        self._refined: dict | None = None
-        self._generation = 0
         self._stop = threading.Event()
         self.thread: threading.Thread | None = None
         self.result: dict | None = None      # the metrics.json refine section once done
@@ -98,11 +60,7 @@ class RefinePanel:
     @property
     def published(self) -> int:
         """Maps handed to the viewer so far (during and after refine jobs)."""
-        return self.refined()[1]
-
-    def refined(self) -> tuple[dict | None, int]:
-        with self._lock:
-            return self._refined, self._generation
+        return self.feed.refined()[1]
 
     def sync(self, snap: MapSnapshot) -> None:
         """Enable the button when `snap` is a finished run with a folder (called on every viewer pull)."""
@@ -166,10 +124,7 @@ class RefinePanel:
 
     def _publish(self, job) -> None:
         """Show the job's map as it stands (a published copy: the job goes on stepping its tensors)."""
-        with self._lock:
-            self._refined = VersionArrays(job.refiner.publish())
-            self._generation += 1
-        self._wake()
+        self.feed.publish_refined(VersionArrays(job.refiner.publish()))
 
     def close(self, timeout: float = 30.0) -> None:
         self._stop.set()

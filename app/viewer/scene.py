@@ -7,7 +7,7 @@ born in (previous keyframe, keyframe]; `/map/tail` those born after the last key
 keyframe sends only its own chunk; the tail is small. Because SLAM keeps refining old Gaussians
 (and prunes some), every node is refreshed from the latest snapshot in one atomic
 "consolidation" every few keyframes / seconds and whenever the run pauses or ends. Scrubbing to
-keyframe k just toggles visibility of the chunks after k (cheap: no re-upload). A consolidation
+keyframe k hides the chunks after k for that page only (scrub.py: client-scoped shadows, no re-upload). A consolidation
 re-sends only the chunks whose Gaussians changed (a fingerprint of their arrays): mapping moves
 only what the window sees, so on a capture that keeps exploring the chunks left behind are not
 sent again and an update costs what changed, not the whole map.
@@ -124,7 +124,6 @@ class MapLayer:
         self._lock = threading.RLock()
         self._nodes: dict[str, viser.SceneNodeHandle] = {}       # name -> splats / points (non-empty only)
         self._order: list[str] = []                               # chunk names, keyframe order
-        self._limit: int | None = None                           # show chunks 0..limit; None = all
         self._map_version = -1
         self._keyframes_followed = -1                             # keyframes of the last snapshot followed
         self._keyframes_at_consolidation = 0
@@ -141,6 +140,11 @@ class MapLayer:
     @property
     def node_names(self) -> list[str]:
         return list(self._nodes)
+
+    def chunk_names(self) -> list[str]:
+        """Every chunk's node name in keyframe order, the tail last (scrub.py shadows those after a keyframe)."""
+        with self._lock:
+            return list(self._order)
 
     def update(self, snap: MapSnapshot, force_consolidate: bool = False) -> bool:
         """Bring the chunks up to date with `snap`; returns True if anything was sent."""
@@ -176,7 +180,7 @@ class MapLayer:
                     payloads[name] = payload_of(snap.gaussians, idx, stride) if len(idx) else None
             with self.server.atomic():
                 for name, payload in payloads.items():
-                    self._send(name, payload, self._visible(names.index(name), K))
+                    self._send(name, payload)
                     self.chunks_sent += payload is not None
                 for stale in [n for n in self._order if n not in names]:  # keyframes never vanish,
                     self._drop(stale)                                      # but be safe
@@ -219,7 +223,7 @@ class MapLayer:
             return True
         return self.policy == "keyframes" and len(snap.keyframe_frames) > self._keyframes_followed
 
-    def _send(self, name: str, payload, visible: bool) -> None:
+    def _send(self, name: str, payload, visible: bool = True) -> None:
         handle = self._nodes.get(name)
         if payload is None:
             self._drop(name)
@@ -249,24 +253,6 @@ class MapLayer:
         if handle is not None:
             handle.remove()
 
-    def _visible(self, k: int, K: int) -> bool:
-        if self._limit is None:
-            return True
-        return k <= self._limit and k < K
-
-    def show_upto(self, limit: int | None) -> None:
-        """Show the map as it was at keyframe `limit` (None: the whole current map)."""
-        with self._lock:
-            self._limit = limit
-            K = len(self._order) - 1
-            with self.server.atomic():
-                for k, name in enumerate(self._order):
-                    handle = self._nodes.get(name)
-                    if handle is not None:
-                        visible = self._visible(k, K)
-                        if handle.visible != visible:
-                            handle.visible = visible
-
 
 def wxyz_position(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     c2w = np.asarray(c2w, np.float64)
@@ -291,7 +277,6 @@ class CameraLayer:
         self.on_keyframe_click = on_keyframe_click
         self.frustum_scale: float | None = None
         self._frustums: dict[int, viser.CameraFrustumHandle] = {}
-        self._selected: int | None = None
         self._current = None
         self.lost_shown = False   # the current camera is drawn in the "lost" colour
         self._traj_len = {"estimated": -1, "reference": -1}
@@ -355,15 +340,4 @@ class CameraLayer:
             thickness=2.5 if which == "estimated" else 2.0, thickness_units="screen")
 
     def _color_of(self, frame_index: int):
-        return self.colors["selected"] if frame_index == self._selected else self.colors["keyframe"]
-
-    def select(self, frame_index: int | None, hide: bool = False) -> None:
-        """Highlight one keyframe's frustum (None: no highlight). `hide` hides it instead, for
-        when the browser camera sits at that keyframe: its image would cover the whole view."""
-        with self._lock:
-            previous, self._selected = self._selected, frame_index
-            with self.server.atomic():
-                for f in (previous, frame_index):
-                    if f is not None and f in self._frustums:
-                        self._frustums[f].color = self._color_of(f)
-                        self._frustums[f].visible = not (hide and f == frame_index)
+        return self.colors["keyframe"]

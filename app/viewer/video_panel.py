@@ -34,7 +34,7 @@ class CameraPathPanel:
     """GUI folder "Camera path video" and the path under /camera_path in the scene."""
 
     def __init__(self, server: viser.ViserServer, snapshot_fn, *, export_dir: Path | None = None,
-                 render_backend: str = "auto", order: float = 6.0):
+                 render_backend: str = "auto", order: float = 6.0, gui=None):
         self.server = server
         self.snapshot_fn = snapshot_fn      # () -> MapSnapshot | None
         self.export_dir = Path(export_dir) if export_dir else None
@@ -46,7 +46,7 @@ class CameraPathPanel:
         self._lock = threading.Lock()       # guards the keyframe lists
         self._busy = threading.Lock()       # one render at a time
         self._cancel = threading.Event()
-        gui = server.gui
+        gui = gui if gui is not None else server.gui   # the viewer passes its ControlGui (controlling pages)
         with gui.add_folder("Camera path video", order=order, expand_by_default=False):
             self.info = gui.add_markdown("Move the view, then **Add current view** (two or more).")
             self.add_button = gui.add_button("Add current view", icon=viser.Icon.CAMERA_PLUS)

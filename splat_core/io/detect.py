@@ -109,6 +109,19 @@ def format_help() -> str:
     return "; ".join(f"{f.name}: {f.needs}" for f in FORMATS.values())
 
 
+PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".heic", ".heif")
+
+
+def photos_without_depth(path: Path) -> int:
+    """How many photos a folder (and its direct subfolders) holds when nothing in it is named for depth
+    (0 when something is, or there are no photos)."""
+    entries = list(path.iterdir())
+    entries += [e for d in entries if d.is_dir() for e in d.iterdir()]
+    if any("depth" in e.name.lower() for e in entries):
+        return 0
+    return sum(e.is_file() and e.suffix.lower() in PHOTO_SUFFIXES for e in entries)
+
+
 def detect_format(path) -> str:
     """Name of the format of the capture at `path`; InputError saying what is missing otherwise."""
     path = Path(path)
@@ -139,6 +152,10 @@ def detect_format(path) -> str:
         if any(not m.endswith("/") for m in present):
             score = sum(weight[m] for m in present) / sum(weight.values())
             near.append((score, f.name, [m for m, ok in marks if not ok]))
+    photos = photos_without_depth(path)
+    if photos:
+        raise InputError(f"{path}: {photos} photo(s) but no depth found: this needs RGB-D (a depth image per frame, "
+                         "e.g. from a LiDAR phone app or a depth camera)")
     if near:
         near.sort(key=lambda x: -x[0])
         _, name, missing = near[0]

@@ -129,5 +129,6 @@ def click(button) -> None:
     """Press a viser GUI button from a test: its on_click callbacks with an event from no client."""
     from viser import GuiEvent
 
-    for callback in list(button._impl.update_cb):
+    callbacks = button.callbacks if hasattr(button, "callbacks") else button._impl.update_cb   # a ControlGui widget
+    for callback in list(callbacks):
         callback(GuiEvent(client=None, client_id=None, target=button))
