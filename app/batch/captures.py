@@ -63,8 +63,9 @@ def list_captures(paths: list[str], list_file=None) -> list[Capture]:
     depth = [1] * len(resolved)
     while len(set(names)) < len(names):       # prefix clashing names with their parents' names
         changed = False
+        clashing = {n for n in names if names.count(n) > 1}
         for i, n in enumerate(names):
-            if names.count(n) > 1 and depth[i] < len(resolved[i].parts) - 1:
+            if n in clashing and depth[i] < len(resolved[i].parts) - 1:
                 depth[i] += 1
                 names[i] = "_".join(_base_name(Path(part)) for part in resolved[i].parts[-depth[i]:])
                 changed = True

@@ -74,8 +74,12 @@ class Batch:
     def all_rows(self) -> list[dict]:
         out = []
         for cap in self.captures:
-            if cap.name not in self.rows:    # never finished in this batch: running at Ctrl-C, or not started
+            if cap.name not in self.rows:    # no result came back: running at Ctrl-C, or not started
                 st = state.read_status(self.out_root / cap.name)
+                if st.get("status") in ("done", "resumed", "failed") and st.get("started", 0) >= self.started:
+                    self.record(cap, dict(st, name=cap.name))     # it ended just before the result came back
+                    out.append(self.rows[cap.name])
+                    continue
                 began = st.get("status") in ("running", "interrupted") and st.get("started", 0) >= self.started
                 self.rows[cap.name] = make_row(cap, dict(status="interrupted" if began else "pending",
                                                          error="stopped by Ctrl-C; the next batch resumes it"

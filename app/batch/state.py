@@ -14,7 +14,25 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from splat_core.io.atomic import write_text_atomic
+
+
+def write_text_atomic(path, text: str) -> None:
+    """Write to a temporary name beside `path`, then rename (as splat_core.io.atomic does; that
+    package imports torch, seconds per Dask worker process that only writes this small file)."""
+    import os
+    import tempfile
+
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
 
 STATUS_FILE = "batch_status.json"
 EXPORT_DIR = "export"
