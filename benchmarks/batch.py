@@ -17,6 +17,8 @@ a small config so that the fixed costs show:
   checkpoint: every capture must finish, the killed one resumed, each trajectory byte-identical
   to the sequential run of the same capture;
 - scaling: the expected wall time of C captures on N machines of W runs each from the parts above.
+Beside each wall time, the CPU time (user + system) of the command and every process under it:
+on a machine shared with other jobs the wall times drift with their load, the CPU times much less.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import signal
 import statistics
@@ -53,9 +56,21 @@ def env():
     return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
 
 
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process's finished children and all they waited for: a
+    batch's workers, its runs and its scheduler included. Unlike wall time it barely moves with
+    the load that other jobs put on a shared machine."""
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+CPU = {"total": 0.0}
+
+
 def timed(cmd) -> float:
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), cpu_seconds()
     subprocess.run(cmd, env=env(), check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    CPU["last"] = cpu_seconds() - cpu
     return time.perf_counter() - start
 
 
@@ -76,11 +91,11 @@ def cluster_start_close() -> tuple[float, float]:
 def batch(caps, out: Path, config: Path, *extra) -> tuple[float, dict]:
     cmd = [sys.executable, "-m", "app.cli", "batch", *map(str, caps), "--out", str(out), "--config", str(config),
            "--quiet", *extra]
-    start = time.perf_counter()
+    start, cpu = time.perf_counter(), cpu_seconds()
     code = subprocess.run(cmd, env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode
     wall = time.perf_counter() - start
     rows = {r["name"]: r for r in json.loads((out / "summary.json").read_text())["captures"]}
-    return wall, dict(exit_code=code, rows=rows)
+    return wall, dict(exit_code=code, rows=rows, cpu_s=cpu_seconds() - cpu)
 
 
 def fault_run(caps, out: Path, config: Path) -> dict:
@@ -123,17 +138,28 @@ def main() -> None:
     run = [sys.executable, "-m", "app.cli", "run", "--config", str(config), "--quiet"]
 
     timed(run + ["--input", str(caps[0]), "--out", str(work / "warm")])         # compiles / loads Numba's cache
-    starts = [timed([sys.executable, "-c", "import app.commands.run, splat_core.pipeline, torch"]) for _ in range(3)]
+    starts, start_cpu = [], []
+    for _ in range(3):
+        starts.append(timed([sys.executable, "-c", "import app.commands.run, splat_core.pipeline, torch"]))
+        start_cpu.append(CPU["last"])
     cluster_start, cluster_close = cluster_start_close()
 
-    seq_walls, seq_runs = [], []
-    t0 = time.perf_counter()
-    for c in named:
-        seq_walls.append(timed(run + ["--input", c.path, "--out", str(work / "seq" / c.name)]))
-        seq_runs.append(run_seconds(work / "seq" / c.name))
-    seq_total = time.perf_counter() - t0
+    def sequential(tag):
+        walls, runs = [], []
+        start, cpu = time.perf_counter(), cpu_seconds()
+        for c in named:
+            walls.append(timed(run + ["--input", c.path, "--out", str(work / tag / c.name)]))
+            runs.append(run_seconds(work / tag / c.name))
+        CPU[tag] = cpu_seconds() - cpu
+        return time.perf_counter() - start, walls, runs
 
+    # The machine is shared: the sequential runs go once before and once after the 1-worker batch,
+    # and the batch is compared with their mean (the load drifts within minutes).
+    seq_total_a, seq_walls, seq_runs = sequential("seq")
     b1_wall, b1 = batch(caps, work / "b1", config, "--workers", "1")
+    seq_total_b, walls_b, _ = sequential("seq_again")
+    seq_total = (seq_total_a + seq_total_b) / 2
+    seq_walls += walls_b
     b2_wall, b2 = batch(caps, work / "b2", config, "--workers", "2", "--cores-per-run", "1")
     n = len(named)
     task_total = sum(r["batch_seconds"] for r in b1["rows"].values())
@@ -152,16 +178,20 @@ def main() -> None:
         machine=machine(), date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), captures=n, frames=args.frames,
         note="shared machine (other jobs running): compare figures within this invocation only",
         load_average=os.getloadavg(),
-        process_start_s=round(process_start, 2), cluster_start_s=round(cluster_start, 2),
+        process_start_s=round(process_start, 2), process_start_cpu_s=round(statistics.median(start_cpu), 2), cluster_start_s=round(cluster_start, 2),
         cluster_close_s=round(cluster_close, 2),
-        sequential=dict(total_s=round(seq_total, 1), per_capture_s=round(per_run, 2),
+        sequential=dict(total_s=round(seq_total, 1), before_s=round(seq_total_a, 1), after_s=round(seq_total_b, 1),
+                        per_capture_s=round(per_run, 2), cpu_s=round((CPU["seq"] + CPU["seq_again"]) / 2, 1),
                         slam_seconds_per_capture=round(statistics.mean(seq_runs), 2)),
         batch_1_worker=dict(total_s=round(b1_wall, 1), ratio_to_sequential=round(b1_wall / seq_total, 3),
+                            cpu_s=round(b1["cpu_s"], 1),
+                            cpu_ratio_to_sequential=round(2 * b1["cpu_s"] / (CPU["seq"] + CPU["seq_again"]), 3),
                             exit_code=b1["exit_code"], task_seconds_per_capture=round(task_total / n, 2),
                             scheduler_seconds_per_capture=round(dispatch, 3),
                             overhead_per_capture_s=round((b1_wall - seq_total) / n, 2),
                             trajectories_identical_to_sequential=identical["b1"]),
         batch_2_workers=dict(total_s=round(b2_wall, 1), speedup_vs_1_worker=round(b1_wall / b2_wall, 3),
+                             cpu_s=round(b2["cpu_s"], 1),
                              exit_code=b2["exit_code"], trajectories_identical_to_sequential=identical["b2"]),
         fault=fault,
         scaling=dict(model="T(C captures, N machines, W runs each) ~= cluster_start + ceil(C / (N*W)) * "

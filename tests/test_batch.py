@@ -121,6 +121,29 @@ def test_bad_options_exit_2(tmp_path, capsys):
     assert splatam_main(["batch", str(tmp_path / "nope"), "--out", str(tmp_path / "o")]) == 2
 
 
+def test_layout_gpu_slots_cpu_cores_and_a_remote_cluster_without_the_resource(monkeypatch):
+    from app.batch import cluster
+    monkeypatch.setattr(cluster, "local_gpus", lambda: ["0", "1", "2", "3"])
+    monkeypatch.setattr(cluster, "machine_cores", lambda: 16)
+    gpu = cluster.local_layout("auto", None, None, 2)
+    assert (gpu.workers, gpu.task_resources, gpu.gpu_slots, gpu.cores_per_run) == (2, {"GPU": 2}, {0: "0,1", 1: "2,3"}, 8)
+    cpu = cluster.local_layout("cpu", None, None, None)                # GPUs ignored; 4 cores a run by default
+    assert cpu.task_resources == {"CPU": 4} and cpu.gpu_slots == {} and 1 <= cpu.workers <= 4
+    assert cluster.local_layout("cpu", 2, None, None).task_resources == {"CPU": 8}
+    monkeypatch.setattr(cluster, "local_gpus", lambda: [])
+    with pytest.raises(InputError, match="no NVIDIA GPU"):
+        cluster.local_layout("cuda", None, None, None)
+
+    class FakeClient:          # a running cluster whose one worker offers no GPU
+        scheduler = type("S", (), {"address": "tcp://10.0.0.1:8786"})()
+
+        def scheduler_info(self):
+            return {"workers": {"w": {"resources": {"CPU": 16}}}}
+    assert cluster.remote_layout(FakeClient(), "auto", None, None).task_resources == {"CPU": 16}
+    with pytest.raises(InputError, match="no worker offers the resource GPU=1.*--resources GPU=N"):
+        cluster.remote_layout(FakeClient(), "auto", None, 1)
+
+
 # ----------------------------------------------------------------------------- on a local cluster
 
 @pytest.mark.slow
@@ -163,9 +186,23 @@ def test_batch_reports_a_broken_capture_skips_on_rerun_and_retries_failed(tmp_pa
     assert rows["a"]["status"] == "skipped" and (out / "a" / "metrics.json").stat().st_mtime_ns == stamp
 
 
+def _wait_gone(pids, psutil, timeout=5.0):
+    """The processes among `pids` still running after `timeout` s (a zombie counts as gone)."""
+    def running(p):
+        try:
+            return psutil.Process(p).status() != psutil.STATUS_ZOMBIE
+        except psutil.NoSuchProcess:
+            return False
+    deadline = time.time() + timeout
+    while (alive := [p for p in pids if running(p)]) and time.time() < deadline:
+        time.sleep(0.05)
+    return alive
+
+
 @pytest.mark.slow
 def test_a_worker_killed_mid_run_is_retried_and_resumes_to_the_same_trajectory(tmp_path, tiny):
     pytest.importorskip("distributed")
+    import psutil   # a dependency of distributed
     caps = tmp_path / "caps"
     fixtures.write_tum(caps / "a", n=9)
     for name in ("b",):                                              # the same capture twice
@@ -182,8 +219,9 @@ def test_a_worker_killed_mid_run_is_retried_and_resumes_to_the_same_trajectory(t
             for n in "ab":                 # a run with a checkpoint and far from done: kill its worker
                 if state.has_checkpoint(out / n) and not (out / n / "metrics.json").exists():
                     killed, pid = n, state.read_status(out / n)["pid"]
-                    child = subprocess.run(["pgrep", "-P", str(pid)], capture_output=True, text=True).stdout.split()
+                    child = [c.pid for c in psutil.Process(pid).children()]   # its `splatam run`
                     os.kill(pid, signal.SIGKILL)
+                    alive = _wait_gone(child, psutil)
                     break
             time.sleep(0.05)
         assert killed, "no run reached its first checkpoint"
@@ -197,8 +235,7 @@ def test_a_worker_killed_mid_run_is_retried_and_resumes_to_the_same_trajectory(t
     trajectories = {(out / n / "trajectory.txt").read_bytes() for n in "ab"}
     assert len(trajectories) == 1                                    # sequential engine: identical
     assert len(state.read_metrics(out / killed)["per_frame"]) == 9
-    for c in child:                                                  # the killed worker's run died with it
-        assert not Path(f"/proc/{c}").exists() or "zombie" in Path(f"/proc/{c}/status").read_text().lower()
+    assert child and not alive                                       # the killed worker's run died with it
 
 
 @pytest.mark.slow
