@@ -243,7 +243,7 @@ def test_ctrl_c_keeps_finished_runs_writes_the_summary_and_the_rerun_resumes(tmp
     pytest.importorskip("distributed")
     caps = tmp_path / "caps"
     fixtures.write_tum(caps / "a", n=3)
-    fixtures.write_tum(caps / "b", n=9)
+    fixtures.write_tum(caps / "b", n=15)            # far from done when a is
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "app.cli", "batch", str(caps / "a"), str(caps / "b"), "--out", str(out),
            "--config", str(tiny), "--workers", "2", "--quiet"]
@@ -264,4 +264,4 @@ def test_ctrl_c_keeps_finished_runs_writes_the_summary_and_the_rerun_resumes(tmp
     assert not (out / "b/metrics.json").exists() and (out / "index.html").is_file()
     assert subprocess.run(cmd, env=_batch_env()).returncode == 0
     rows = _summary(out)
-    assert rows["a"]["status"] == "skipped" and rows["b"]["status"] == "resumed" and rows["b"]["frames"] == 9
+    assert rows["a"]["status"] == "skipped" and rows["b"]["status"] == "resumed" and rows["b"]["frames"] == 15

@@ -160,7 +160,9 @@ def open_client(scheduler: str | None, layout_args: dict):
         dashboard = "127.0.0.1:0"
     except ImportError:
         pass
-    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES}):
+    # The workers only wait on their runs' processes: no statistical profiler sampling them.
+    with dask.config.set({"distributed.scheduler.allowed-failures": ALLOWED_FAILURES,
+                          "distributed.worker.profile.enabled": False}):
         cluster = LocalCluster(n_workers=layout.workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                dashboard_address=dashboard, silence_logs=logging.CRITICAL,
                                resources=layout.worker_resources, memory_limit=0)

@@ -89,6 +89,13 @@ class Child:
     def __init__(self, run_dir: Path, opts: RunOptions, worker_name=None):
         self.log = run_dir / "batch.log"
         self.env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
+        try:    # what Dask's nanny sets for its worker (1 BLAS thread, malloc trimming) is not for the run
+            import dask
+            for key, value in (dask.config.get("distributed.nanny.pre-spawn-environ", None) or {}).items():
+                if self.env.get(key) == str(value):
+                    del self.env[key]
+        except ImportError:
+            pass
         if opts.cores:
             for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
                 self.env[var] = str(opts.cores)
