@@ -26,6 +26,7 @@ SUBCOMMANDS = {
                "or hand it off: a COLMAP model, a nerfstudio dataset, a mesh"),
     "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
     "refine": ("app.commands.refine", "refine a finished run's map over all keyframes at the capture's resolution"),
+    "batch": ("app.commands.batch", "run many captures on a local or multi-node Dask cluster, with a summary and report"),
 }
 
 
