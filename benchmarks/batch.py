@@ -140,7 +140,7 @@ def main() -> None:
     timed(run + ["--input", str(caps[0]), "--out", str(work / "warm")])         # compiles / loads Numba's cache
     starts, start_cpu = [], []
     for _ in range(3):
-        starts.append(timed([sys.executable, "-c", "import app.commands.run, splat_core.pipeline, torch"]))
+        starts.append(timed([sys.executable, "-c", "import app.commands.run, splat_core.run, torch"]))
         start_cpu.append(CPU["last"])
     cluster_start, cluster_close = cluster_start_close()
 
