@@ -119,6 +119,30 @@ class LostTrackingConfig:
 
 
 @dataclass
+class LoopClosureConfig:
+    """Online loop closure (splat_core/loop/, docs/loop-closure.md); off in the paper presets."""
+    enabled: bool = False
+    min_gap_frames: int = 100             # a candidate keyframe is at least this many frames older than the current one
+    min_visible: float = 0.15             # candidate: this fraction of the current depth is explained by its old Gaussians ...
+    min_orb_matches: int = 25             # ... or ORB matches (ratio test) with it reach this many
+    max_candidates: int = 3               # verified per keyframe (best first)
+    min_inliers: int = 25                 # 3D-3D RANSAC inliers (ORB matches with depth) to accept
+    min_inlier_ratio: float = 0.3
+    inlier_distance: float = 0.03         # metres, RANSAC inlier threshold
+    min_overlap: float = 0.3              # alignment: fraction of the frame's depth the old map explains
+    max_rmse: float = 0.03                # alignment: point-to-plane RMS (metres) at most
+    max_disagreement: float = 0.05        # RANSAC and alignment agree within this (metres) ...
+    max_disagreement_deg: float = 3.0     # ... and degrees
+    min_correction: float = 0.005         # optimise the graph only when the loop disagrees by this (metres) ...
+    min_correction_deg: float = 0.25      # ... or degrees with the current poses
+    odometry_sigma: float = 0.01          # metres per keyframe step (+ odometry_sigma_rel x the step's length)
+    odometry_sigma_rel: float = 0.05
+    odometry_sigma_deg: float = 0.3
+    remap_iterations: int = 20            # mapping iterations over the loop's keyframes after a correction
+    cooldown_keyframes: int = 2           # keyframes without detection after an accepted loop
+
+
+@dataclass
 class Config:
     name: str = "splatam"
     format_layer: str | None = None       # the format layer applied (configs/formats/), None = none
@@ -138,6 +162,7 @@ class Config:
     keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
     live: LiveConfig = field(default_factory=LiveConfig)
     lost_tracking: LostTrackingConfig = field(default_factory=LostTrackingConfig)
+    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -163,6 +188,9 @@ class Config:
             (min(self.lost_tracking.loss_history, self.lost_tracking.min_history) >= 1
              and min(self.lost_tracking.recent_keyframes, self.lost_tracking.spread_keyframes) >= 0,
              "lost_tracking: loss_history and min_history must be >= 1, recent/spread_keyframes >= 0"),
+            (self.loop_closure.min_gap_frames >= 1 and self.loop_closure.min_inliers >= 3
+             and self.loop_closure.max_candidates >= 0 and self.loop_closure.remap_iterations >= 0,
+             "loop_closure: min_gap_frames >= 1, min_inliers >= 3, max_candidates and remap_iterations >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),

@@ -405,6 +405,10 @@ class Pipeline:
             out["live"] = dict(max_lag=self.config.live.max_lag, mapper_steps=live.mapper_steps,
                                mapper_seconds=live.mapper_seconds, tracker_wait_seconds=live.wait_seconds,
                                gaussians_added=live.num_added, gaussians_pruned=live.num_pruned)
+        if self.slam.loop_closure is not None:
+            out["loops_closed"] = len(self.slam.loop_closure.loops)
+            out["loops_rejected"] = self.slam.loop_closure.rejected
+            out["loops"] = list(self.slam.loop_closure.loops)
         out.update(self.evaluate())
         out["per_frame"] = self.records
         return out

@@ -32,6 +32,7 @@ from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
 from .mapping import View, optimise_map, prune_mask
+from .loop import LoopClosure
 from .relocalise import LostTracking
 from .render import Renderer
 from .tracking import Tracker, TrackResult
@@ -54,6 +55,7 @@ class FrameResult:
     frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution
     map_version: int = 0          # the map version the frame was tracked against
     lost: str | None = None       # why tracking was lost on this frame (its pose is the last tracked one); None: tracked
+    loops: list = field(default_factory=list)   # loops closed at this frame (splat_core/loop/closer.py records)
 
     @property
     def c2w(self) -> np.ndarray:
@@ -68,6 +70,7 @@ class MapVersion:
     frame_index: int              # the newest frame mapped into it (-1: empty map)
     gaussians: Gaussians          # detached tensors, never modified after publishing
     birth_frame: torch.Tensor
+    loops: tuple = ()             # every loop closed so far (keyframes, frames, correction; closer.py records)
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -98,6 +101,7 @@ class SplaTAM:
         self.lost_tracking = LostTracking(config.lost_tracking, self.tracker)
         self.map = GaussianMap.empty(config.isotropic, device=self.device, dtype=dtype)
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
+        self.loop_closure = LoopClosure(config.loop_closure, config.seed) if config.loop_closure.enabled else None
         self.w2cs: list[np.ndarray] = []
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
@@ -120,7 +124,9 @@ class SplaTAM:
         stats = self.map_frame(frame, w2c, t)
         lost = self.lost_tracking.reason(t)
         keyframe = lost is None and is_keyframe_time(t, self.total_frames, self.config.keyframes.every)
-        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=keyframe, lost=lost,
+        loops = self.close_loops(t) if keyframe else []
+        w2c = self.w2cs[t]            # corrected if a loop closed
+        return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=keyframe, lost=lost, loops=loops,
                            num_gaussians=len(self.map), num_added=stats.added, num_pruned=stats.pruned,
                            tracking_seconds=t1 - t0, mapping_seconds=time.perf_counter() - t1,
                            tracking_loss=tracked.loss if tracked else None,
@@ -162,6 +168,15 @@ class SplaTAM:
             self.keyframes.add(t, w2c, frame.color, frame.depth)
         stats.seconds = time.perf_counter() - start
         return stats
+
+    def close_loops(self, t: int) -> list[dict]:
+        """Loop closure after keyframe t was mapped (splat_core/loop/): the loops accepted now."""
+        if self.loop_closure is None:
+            return []
+        return self.loop_closure.after_keyframe(self, t)
+
+    def all_loops(self) -> tuple:
+        return tuple(self.loop_closure.loops) if self.loop_closure is not None else ()
 
     # ------------------------------------------------------------------ steps
     def densify(self, color, depth, w2c, t) -> int:
@@ -211,7 +226,8 @@ class SplaTAM:
         copy = Gaussians(*(x.clone() for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
         with self._version_lock:
             self._versions_made += 1
-            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone())
+            self._version = MapVersion(self._versions_made, frame_index, copy, self.map.birth_frame.clone(),
+                                       self.all_loops())
             return self._version
 
     def latest_version(self) -> MapVersion | None:
@@ -226,6 +242,8 @@ class SplaTAM:
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
         arrays["tracker_state"] = np.array(self.tracker.state())
+        if self.loop_closure is not None:
+            arrays["loop_state"] = np.array(self.loop_closure.state())
         return arrays
 
     def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
@@ -239,3 +257,5 @@ class SplaTAM:
         self.rng.bit_generator.state = json.loads(str(arrays["rng_state"]))
         if "tracker_state" in arrays:
             self.tracker.load_state(str(arrays["tracker_state"]))
+        if self.loop_closure is not None and "loop_state" in arrays:
+            self.loop_closure.load_state(str(arrays["loop_state"]))
