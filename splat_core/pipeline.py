@@ -408,6 +408,7 @@ class Pipeline:
         if self.slam.loop_closure is not None:
             out["loops_closed"] = len(self.slam.loop_closure.loops)
             out["loops_rejected"] = self.slam.loop_closure.rejected
+            out["loops_rejected_by"] = dict(self.slam.loop_closure.rejected_by)
             out["loops"] = list(self.slam.loop_closure.loops)
         out.update(self.evaluate())
         out["per_frame"] = self.records

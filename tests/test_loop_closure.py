@@ -106,6 +106,7 @@ SMALL = {"resolution": [128, 96], "checkpoint_every": 10, "eval_every": 100,
          "loop_closure": {"min_gap_frames": 20, "remap_iterations": 4}}
 
 
+@pytest.mark.slow
 def test_drifting_loop_is_closed_and_pulled_back():
     from splat_core.loop.evaluate import run_drifting
     from splat_core.synthetic_loop import LoopSource
@@ -121,6 +122,7 @@ def test_drifting_loop_is_closed_and_pulled_back():
     assert closed["map_depth_error_cm"] < drifted["map_depth_error_cm"]
 
 
+@pytest.mark.slow
 def test_no_loop_on_a_corridor_that_never_returns():
     from splat_core.synthetic_corridor import CorridorSource
     from splat_core.loop.evaluate import run_drifting
@@ -131,11 +133,12 @@ def test_no_loop_on_a_corridor_that_never_returns():
     assert run["loops"] == [] and len(lc.edges) == len(run["slam"].keyframes) - 1
 
 
+@pytest.mark.slow
 def test_resume_with_a_closed_loop_equals_an_uninterrupted_run(tmp_path):
     from splat_core.pipeline import Pipeline
     from splat_core.synthetic_loop import LoopSource
 
-    overrides = dict(SMALL, checkpoint_every=5, tracking={"use_reference_poses": True},
+    overrides = dict(SMALL, checkpoint_every=3, tracking={"use_reference_poses": True},
                      loop_closure=dict(SMALL["loop_closure"], min_correction=0.0, min_correction_deg=0.0))
     config = load_config("cpu", overrides)
     source = lambda: LoopSource(n_frames=50, width=128, height=96, overlap=0.4)  # noqa: E731
@@ -145,15 +148,46 @@ def test_resume_with_a_closed_loop_equals_an_uninterrupted_run(tmp_path):
     metrics = full.finish()
     assert metrics["loops_closed"] >= 1 and metrics["loops"][0]["applied"]
     first = metrics["loops"][0]["frames"][1]
-    assert first + 7 < 50
+    assert first + 3 < 50
     killed = Pipeline(source(), config, tmp_path / "resumed")
-    while len(killed.records) < first + 7 and killed.step() is not None:   # a checkpoint after the loop,
+    while len(killed.records) < first + 3 and killed.step() is not None:   # a checkpoint after the loop,
         pass                                                                 # then frames lost to the "crash"
     del killed
     resumed = Pipeline(source(), config, tmp_path / "resumed", resume=True)
-    assert first < len(resumed.records) < first + 7 and resumed.slam.loop_closure.loops
+    assert first < len(resumed.records) < first + 3 and resumed.slam.loop_closure.loops
     while resumed.step() is not None:
         pass
     resumed.finish()
     for name in ("trajectory.txt", "map.ply"):
         assert (tmp_path / "full" / name).read_bytes() == (tmp_path / "resumed" / name).read_bytes(), name
+
+
+def test_on_in_the_cpu_preset_off_in_the_paper_presets_and_the_cli_switches_it():
+    import torch as _torch
+    from app.run_setup import load_run_config
+
+    assert load_config("cpu").loop_closure.enabled and load_config("cpu_dense").loop_closure.enabled
+    for name in ("splatam", "splatam_s", "splatam_tum", "splatam_scannet", "splatam_iphone", "splatam_scannetpp"):
+        assert not load_config(name).loop_closure.enabled, name
+    cpu = _torch.device("cpu")
+    assert not load_run_config("cpu", "tum", cpu, loop_closure="off").loop_closure.enabled
+    assert load_run_config("splatam", "tum", cpu, loop_closure="on").loop_closure.enabled
+
+
+@pytest.mark.slow
+def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
+    from splat_core.pipeline import Pipeline
+    from splat_core.synthetic_loop import LoopSource
+
+    overrides = dict(SMALL, checkpoint_every=0, tracking={"use_reference_poses": True},
+                     loop_closure=dict(SMALL["loop_closure"], min_correction=0.0, min_correction_deg=0.0))
+    pipe = Pipeline(LoopSource(n_frames=50, width=128, height=96, overlap=0.4), load_config("cpu", overrides),
+                    engine="live")
+    seen = []
+    while (r := pipe.step()) is not None:
+        seen += r.loops
+    metrics = pipe.finish()
+    assert metrics["loops_closed"] >= 1 and len(pipe.slam.w2cs) == 50
+    assert pipe.map_version().loops == tuple(metrics["loops"])
+    assert len(seen) <= metrics["loops_closed"]          # the last loops may close after the last frame
+    assert metrics["ate_rmse_cm"] < 2.0    # exact poses stay near exact (1.09 cm measured: a forced loop at 128x96)

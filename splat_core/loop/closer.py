@@ -39,6 +39,7 @@ class LoopClosure:
         self.edges: list[pose_graph.Edge] = []      # odometry and loop edges between keyframe positions
         self.loops: list[dict] = []                 # accepted loops with their evidence
         self.rejected = 0                           # candidates verification turned down
+        self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
         self.quiet_until = -1                       # keyframe position before which nothing is detected
         self._features: dict[int, detect.Features] = {}
         self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
@@ -84,6 +85,7 @@ class LoopClosure:
                 self.quiet_until = j + 1 + c.cooldown_keyframes
                 return [record]
             self.rejected += 1
+            self.rejected_by[verdict.reason] = self.rejected_by.get(verdict.reason, 0) + 1
         return []
 
     def features(self, k: int, kf) -> detect.Features:
@@ -155,11 +157,12 @@ class LoopClosure:
     # -------------------------------------------------------------- checkpoints
     def state(self) -> str:
         return json.dumps(dict(edges=[e.to_dict() for e in self.edges], loops=self.loops, rejected=self.rejected,
-                               quiet_until=self.quiet_until))
+                               rejected_by=self.rejected_by, quiet_until=self.quiet_until))
 
     def load_state(self, state: str) -> None:
         s = json.loads(state)
         self.edges = [pose_graph.Edge.from_dict(e) for e in s["edges"]]
         self.loops, self.rejected, self.quiet_until = list(s["loops"]), int(s["rejected"]), int(s["quiet_until"])
+        self.rejected_by = dict(s.get("rejected_by", {}))
         self._features.clear()
 

@@ -29,7 +29,7 @@ from .detect import Features, match
 @dataclass
 class Verdict:
     accepted: bool
-    reason: str
+    reason: str                   # accepted, or the test that failed: matches, inliers, line, overlap, residual, disagreement
     evidence: dict
     c2w_current: np.ndarray | None = None      # the current keyframe's pose in the old map's world
 
@@ -97,7 +97,7 @@ def verify(current: tuple[Features, np.ndarray, np.ndarray], old: tuple[Features
     pairs = match(fa, fb)
     ev: dict = dict(matches=int(len(pairs)))
     if len(pairs) < config.min_inliers:
-        return Verdict(False, f"{len(pairs)} ORB matches", ev)
+        return Verdict(False, "matches", ev)
     pa, ok_a = lift(fa, pairs[:, 0], depth_a, intr)
     pb, ok_b = lift(fb, pairs[:, 1], depth_b, intr)
     ok = ok_a & ok_b
@@ -107,11 +107,11 @@ def verify(current: tuple[Features, np.ndarray, np.ndarray], old: tuple[Features
     ev.update(matches_with_depth=int(ok.sum()), inliers=n_in,
               inlier_ratio=float(n_in / max(1, ok.sum())))
     if n_in < config.min_inliers or ev["inlier_ratio"] < config.min_inlier_ratio:
-        return Verdict(False, f"{n_in} RANSAC inliers of {int(ok.sum())}", ev)
+        return Verdict(False, "inliers", ev)
     spread = np.linalg.svd(pa[inliers] - pa[inliers].mean(0), compute_uv=False)
     ev["inlier_spread_m"] = float(spread[1] / np.sqrt(n_in))           # second axis: not a line
     if ev["inlier_spread_m"] < 0.05:
-        return Verdict(False, "RANSAC inliers lie on a line", ev)
+        return Verdict(False, "line", ev)
     c2w_ransac = c2w_old @ T
     aligned = align_to_map(old_map, color_a, depth_a, intr, invert_pose(c2w_ransac), **align_kwargs)
     stride = max(1, int(align_kwargs.get("live_stride", 1)))
@@ -121,9 +121,9 @@ def verify(current: tuple[Features, np.ndarray, np.ndarray], old: tuple[Features
     ev.update(overlap=float(aligned.correspondences / valid), rmse_m=float(aligned.rmse_depth),
               ransac_vs_alignment_m=dt, ransac_vs_alignment_deg=dr)
     if ev["overlap"] < config.min_overlap:
-        return Verdict(False, f"the old map explains {100 * ev['overlap']:.0f}% of the frame", ev)
+        return Verdict(False, "overlap", ev)
     if not ev["rmse_m"] <= config.max_rmse:
-        return Verdict(False, f"alignment residual {100 * ev['rmse_m']:.1f} cm", ev)
+        return Verdict(False, "residual", ev)
     if dt > config.max_disagreement or dr > config.max_disagreement_deg:
-        return Verdict(False, f"RANSAC and alignment disagree by {100 * dt:.1f} cm / {dr:.1f} deg", ev)
+        return Verdict(False, "disagreement", ev)
     return Verdict(True, "accepted", ev, c2w_aligned)
