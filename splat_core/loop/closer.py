@@ -79,7 +79,7 @@ class LoopClosure:
         rng = np.random.default_rng([self.seed, frame_index, 7])
         color = current.color
         for k in picks:
-            verdict = self._verify(slam, kfs, j, k, feats, color, depth, frame_index, rng)
+            verdict = self._verify(slam, kfs, j, k, feats, color, depth, frame_index, rng, visible[k])
             if verdict.accepted:
                 record = self._close(slam, kfs, j, k, verdict, visible[k], orb[k], start)
                 self.quiet_until = j + 1 + c.cooldown_keyframes
@@ -93,7 +93,7 @@ class LoopClosure:
             self._features[k] = detect.orb_features(kf.images8()[0])
         return self._features[k]
 
-    def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng):
+    def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng, visible_k):
         c, tc = self.config, slam.config.tracking
         old_kf = kfs[k]
         keep = slam.map.birth_frame <= frame_index - c.min_gap_frames
@@ -106,8 +106,9 @@ class LoopClosure:
                      depth_noise=tc.align_depth_noise,
                      live_stride=sparse_step(tc.align_stride, slam.intrinsics, tc.align_min_points))
         c2w_old = invert_pose(old_kf.w2c)
+        estimate = invert_pose(kfs[j].w2c) if visible_k >= c.min_visible else None
         return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
-                      old_map, slam.intrinsics, c, rng, align)
+                      old_map, slam.intrinsics, c, rng, align, estimate)
 
     def _close(self, slam, kfs, j, k, verdict, visible, orb, start) -> dict:
         c = self.config

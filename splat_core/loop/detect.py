@@ -22,8 +22,8 @@ import numpy as np
 
 from ..camera import Intrinsics, invert_pose
 
-ORB_FEATURES = 600
-RATIO = 0.8
+ORB_FEATURES = 1000
+RATIO = 0.85
 
 
 @dataclass
