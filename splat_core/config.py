@@ -129,7 +129,7 @@ class LoopClosureConfig:
     min_inliers: int = 12                 # 3D-3D RANSAC inliers (ORB matches with depth) to accept
     min_inlier_ratio: float = 0.25
     inlier_distance: float = 0.04         # metres, RANSAC inlier threshold
-    min_depth_agreement: float = 0.6      # the old keyframe's depth agrees with the current one at the loop's pose
+    min_depth_agreement: float = 0.5      # the old keyframe's depth agrees with the current one at the loop's pose
     min_overlap: float = 0.3              # alignment: fraction of the frame's depth the old map explains
     max_rmse: float = 0.03                # alignment: point-to-plane RMS (metres) at most
     max_disagreement: float = 0.05        # RANSAC and alignment agree within this (metres) ...
