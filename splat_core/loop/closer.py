@@ -29,6 +29,7 @@ import torch
 from ..camera import invert_pose
 from ..config import LoopClosureConfig
 from ..gaussians import Gaussians
+from ..tracking import sparse_step
 from . import anchors, detect, pose_graph
 from .verify import pose_difference, verify
 
@@ -100,7 +101,6 @@ class LoopClosure:
         g = slam.map.tensors(detach=True)
         idx = torch.nonzero(keep.to(g.means.device)).flatten()
         old_map = Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        from ..tracking import sparse_step
         align = dict(levels=tc.align_levels, iterations=max(10, tc.align_iterations), passes=2,
                      color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold, near=slam.renderer.near,
                      depth_noise=tc.align_depth_noise,
