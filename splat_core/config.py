@@ -134,8 +134,8 @@ class LoopClosureConfig:
     max_rmse: float = 0.03                # alignment: point-to-plane RMS (metres) at most
     max_disagreement: float = 0.05        # RANSAC and alignment agree within this (metres) ...
     max_disagreement_deg: float = 3.0     # ... and degrees
-    min_correction: float = 0.01          # optimise the graph only when the loop disagrees by this (metres) ...
-    min_correction_deg: float = 0.5       # ... or degrees with the current poses
+    min_correction: float = 0.03          # optimise the graph only when the loop disagrees by this (metres) ...
+    min_correction_deg: float = 1.0       # ... or degrees with the current poses (1 cm: 7-Scenes' first 300 frames 1.30 -> 1.55 cm)
     odometry_sigma: float = 0.01          # metres per keyframe step (+ odometry_sigma_rel x the step's length)
     odometry_sigma_rel: float = 0.05
     odometry_sigma_deg: float = 0.3
