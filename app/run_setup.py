@@ -67,6 +67,8 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
     p.add_argument("--engine", default=engine_default, choices=[engine_default, other],
                    help="sequential: track, then map, frame by frame (deterministic); live: tracking runs ahead "
                    f"while a mapper thread maps (faster, not bitwise reproducible); default {engine_default}")
+    p.add_argument("--loop-closure", default=None, choices=["on", "off"],
+                   help="close loops online (docs/loop-closure.md; default: the preset's, on in cpu, off in the paper presets)")
 
 
 def default_config_name(device) -> str:
@@ -94,7 +96,7 @@ def config_summary(config) -> str:
 
 
 def load_run_config(spec: str | None, format_name: str, device, resolution: str | None = None,
-                    min_confidence: int | None = None):
+                    min_confidence: int | None = None, loop_closure: str | None = None):
     """The budget (`spec`, or the device's default) over `format_name`'s layer, then the CLI's
     --resolution and --min-confidence."""
     from splat_core.config import load_config
@@ -105,6 +107,8 @@ def load_run_config(spec: str | None, format_name: str, device, resolution: str 
         overrides["resolution"] = parse_resolution(resolution)
     if min_confidence is not None:
         overrides["min_confidence"] = min_confidence
+    if loop_closure is not None:
+        overrides["loop_closure"] = {"enabled": loop_closure == "on"}
     return load_config(spec or default_config_name(device), overrides, format=format_name)
 
 
@@ -153,7 +157,7 @@ class RunSetup:
 def setup_run(input_path, *, out: Path | None, format: str | None = None, config: str | None = None,
               resolution: str | None = None, min_confidence: int | None = None, device: str = "auto",
               engine: str = "sequential", max_frames: int | None = None, stride: int = 1, resume: bool = False,
-              idle_timeout: float | None = None) -> RunSetup:
+              idle_timeout: float | None = None, loop_closure: str | None = None) -> RunSetup:
     """Settings and input of a run (`input_path` None or "synthetic": the synthetic scene; nerfcapture://: the
     live stream, recorded to OUT/capture and ended after `idle_timeout` seconds without a frame)."""
     from splat_core.run import open_input, resolve_device
@@ -172,7 +176,7 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
         input_path = None
     dev = resolve_device(device)
     format_name = input_format(input_path, format)
-    cfg = load_run_config(config, format_name, dev, resolution, min_confidence)
+    cfg = load_run_config(config, format_name, dev, resolution, min_confidence, loop_closure)
     if input_path is None or str(input_path).startswith(STREAM):
         if min_confidence is not None:
             raise InputError(f"--min-confidence: {input_path or 'the synthetic scene'} has no LiDAR confidence maps "
@@ -189,4 +193,5 @@ def setup_from_args(args, *, out: Path | None, idle_timeout: float | None = None
     """`setup_run` with the options of add_run_arguments."""
     return setup_run(args.input, out=out, format=args.format, config=args.config, resolution=args.resolution,
                      min_confidence=args.min_confidence, device=args.device, engine=args.engine,
-                     max_frames=args.max_frames, stride=args.stride, resume=resume, idle_timeout=idle_timeout)
+                     max_frames=args.max_frames, stride=args.stride, resume=resume, idle_timeout=idle_timeout,
+                     loop_closure=getattr(args, "loop_closure", None))

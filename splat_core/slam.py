@@ -33,6 +33,7 @@ from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
 from .mapping import View, optimise_map, prune_mask
+from .loop import LoopClosure
 from .relocalise import LostTracking
 from .render import Renderer
 from .tracking import Tracker, TrackResult
@@ -55,6 +56,7 @@ class FrameResult:
     frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution
     map_version: int = 0          # the map version the frame was tracked against
     lost: str | None = None       # why tracking was lost on this frame (its pose is the last tracked one); None: tracked
+    loops: list = field(default_factory=list)   # loops closed at this frame (splat_core/loop/closer.py records)
 
     @property
     def c2w(self) -> np.ndarray:
@@ -70,6 +72,7 @@ class MapVersion:
     gaussians: Gaussians          # detached tensors, never modified after publishing
     birth_frame: torch.Tensor
     ready: object = None          # CUDA: an event recorded after the copy on the publishing stream
+    loops: tuple = ()             # every loop closed so far (keyframes, frames, correction; closer.py records)
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -97,7 +100,7 @@ class MapVersion:
         return out
 
 
-def snapshot_version(gmap: GaussianMap, number: int, frame_index: int) -> MapVersion:
+def snapshot_version(gmap: GaussianMap, number: int, frame_index: int, loops: tuple = ()) -> MapVersion:
     """A MapVersion of `gmap` as it is now (copies: later steps never touch it). On CUDA the copy
     carries an event recorded on the publishing stream (the live engine's mapper has its own)."""
     g = gmap.tensors(detach=True)
@@ -106,7 +109,7 @@ def snapshot_version(gmap: GaussianMap, number: int, frame_index: int) -> MapVer
     if g.means.is_cuda:
         ready = torch.cuda.Event()
         ready.record(torch.cuda.current_stream(g.means.device))
-    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready)
+    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready, loops)
 
 
 @dataclass
@@ -128,6 +131,7 @@ class SplaTAM:
         self.lost_tracking = LostTracking(config.lost_tracking, self.tracker)
         self.map = GaussianMap.empty(config.isotropic, device=self.device, dtype=dtype)
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
+        self.loop_closure = LoopClosure(config.loop_closure, config.seed) if config.loop_closure.enabled else None
         self.w2cs: list[np.ndarray] = []
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
@@ -148,7 +152,10 @@ class SplaTAM:
         t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given)
         t1 = time.perf_counter()
         stats = self.map_frame(frame, w2c, t)
-        return self.result(frame, t, w2c, tracked, stats, len(self.map), t1 - t0, time.perf_counter() - t1)
+        loops = self.close_loops(t) if self.is_keyframe(t) else []
+        w2c = self.w2cs[t]            # corrected if a loop closed
+        return self.result(frame, t, w2c, tracked, stats, len(self.map), t1 - t0, time.perf_counter() - t1,
+                           loops=loops)
 
     @property
     def frames_tracked(self) -> int:
@@ -162,10 +169,10 @@ class SplaTAM:
 
     def result(self, frame: Frame, t: int, w2c: np.ndarray, tracked: TrackResult | None, stats: MapStats,
                num_gaussians: int, tracking_seconds: float, mapping_seconds: float,
-               map_version: int = 0) -> FrameResult:
+               map_version: int = 0, loops=()) -> FrameResult:
         """What the engines report for frame t (one place for both)."""
         return FrameResult(index=t, timestamp=frame.timestamp, w2c=w2c, is_keyframe=self.is_keyframe(t),
-                           lost=self.lost_tracking.reason(t), num_gaussians=num_gaussians,
+                           lost=self.lost_tracking.reason(t), loops=list(loops), num_gaussians=num_gaussians,
                            num_added=stats.added, num_pruned=stats.pruned,
                            tracking_seconds=tracking_seconds, mapping_seconds=mapping_seconds,
                            tracking_loss=tracked.loss if tracked else None,
@@ -208,6 +215,15 @@ class SplaTAM:
             self.keyframes.add(t, w2c, frame.color, frame.depth)
         stats.seconds = time.perf_counter() - start
         return stats
+
+    def close_loops(self, t: int) -> list[dict]:
+        """Loop closure after keyframe t was mapped (splat_core/loop/): the loops accepted now."""
+        if self.loop_closure is None:
+            return []
+        return self.loop_closure.after_keyframe(self, t)
+
+    def all_loops(self) -> tuple:
+        return tuple(self.loop_closure.loops) if self.loop_closure is not None else ()
 
     # ------------------------------------------------------------------ steps
     def densify(self, color, depth, w2c, t) -> int:
@@ -255,7 +271,7 @@ class SplaTAM:
         """Make the current map the latest version (copy-on-publish: later steps never touch it)."""
         with self._version_lock:
             self._versions_made += 1
-            self._version = snapshot_version(self.map, self._versions_made, frame_index)
+            self._version = snapshot_version(self.map, self._versions_made, frame_index, self.all_loops())
             return self._version
 
     def latest_version(self) -> MapVersion | None:
@@ -272,6 +288,8 @@ class SplaTAM:
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
         arrays["tracker_state"] = np.array(self.tracker.state())
+        if self.loop_closure is not None:
+            arrays["loop_state"] = np.array(self.loop_closure.state())
         return arrays
 
     def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
@@ -285,3 +303,5 @@ class SplaTAM:
         self.rng.bit_generator.state = json.loads(str(arrays["rng_state"]))
         if "tracker_state" in arrays:
             self.tracker.load_state(str(arrays["tracker_state"]))
+        if self.loop_closure is not None and "loop_state" in arrays:
+            self.loop_closure.load_state(str(arrays["loop_state"]))

@@ -34,7 +34,9 @@ def imports_of(name: str, path: Path, known: dict) -> set[str]:
         elif isinstance(node, ast.ImportFrom):
             prefix = ".".join(base[:len(base) - node.level + 1] + ([node.module] if node.module else [])) \
                 if node.level else node.module
-            candidates = [prefix] + [f"{prefix}.{a.name}" for a in node.names]
+            names = [f"{prefix}.{a.name}" for a in node.names]
+            # `from . import a, b` of submodules imports the modules, not something of the package
+            candidates = names + ([] if all(n in known for n in names) else [prefix])
         else:
             continue
         found.update(c for c in candidates if c in known and c != name)

@@ -50,6 +50,13 @@ def _run(args, run) -> int:
             post["dropped"] = source.dropped
         if pipe.skipped:
             post["skipped"] = len(pipe.skipped)
+        for loop in r.loops:
+            if not args.quiet:
+                bar.write(f"loop closed: keyframe {loop['keyframes'][0]} <-> {loop['keyframes'][1]} (frames "
+                          f"{loop['frames'][0]} <-> {loop['frames'][1]}), correction {loop['correction_cm']:.1f} cm",
+                          file=sys.stderr)
+        if pipe.slam.loop_closure is not None:
+            post["loops"] = len(pipe.slam.loop_closure.loops)
         if r.lost or pipe.lost:
             post["lost"] = f"{len(pipe.lost)}" + (" (relocalising)" if r.lost else "")
         bar.set_postfix(post, refresh=False)
@@ -61,7 +68,7 @@ def _run(args, run) -> int:
         print(f"stream ended ({s['stream_end']}): {s['received']} frames received and recorded in {s['capture']}, "
               f"{s['dropped']} not processed, {s['rejected']} rejected", file=sys.stderr)
     metrics = pipe.finish()
-    summary = {k: metrics[k] for k in ("frames", "frames_skipped", "frames_lost", "ate_rmse_cm", "psnr", "depth_l1_cm",
+    summary = {k: metrics[k] for k in ("frames", "frames_skipped", "frames_lost", "loops_closed", "ate_rmse_cm", "psnr", "depth_l1_cm",
                                        "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
     if not args.quiet:

@@ -75,6 +75,15 @@ class LiveEngine:
         self.mapper_seconds = 0.0
         self.wait_seconds = 0.0
         self.num_added = self.num_pruned = 0
+        # Loop closure (splat_core/loop/) runs in this mapper thread after a keyframe; while it runs the
+        # tracker does not wait for the map (a loop never stalls tracking), and its pose edits happen
+        # under _poses, which the tracker holds while it tracks one frame (so no frame is tracked
+        # against a map older than the poses it is appended to).
+        self._poses = threading.Lock()
+        self._closing_loop = False
+        self.loops: list[dict] = []          # closed since the tracker last took them (FrameResult.loops)
+        if slam.loop_closure is not None:
+            slam.loop_closure.apply_lock = self._poses
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
 
@@ -89,12 +98,15 @@ class LiveEngine:
         t = self.slam.frames_tracked
         waited = self._wait_for_map(t)
         start = time.perf_counter()
-        version = self.slam.latest_version()
-        t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+        with self._poses:
+            version = self.slam.latest_version()
+            t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+        with self._cond:
+            loops, self.loops = self.loops, []
         # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
         # the time reported as mapping is the time this frame waited for the map.
         result = self.slam.result(frame, t, w2c, tracked, MapStats(), len(version), time.perf_counter() - start,
-                                  waited, map_version=version.number)
+                                  waited, map_version=version.number, loops=loops)
         with self._cond:
             self._pending.append((t, frame, w2c))
             self._handed = t
@@ -115,7 +127,7 @@ class LiveEngine:
         start = time.perf_counter()
         need = max(0, t - 1 - self.config.max_lag)
         with self._cond:
-            while t > 0 and self._mapped < need and self.error is None:
+            while t > 0 and self._mapped < need and self.error is None and not self._closing_loop:
                 self._cond.wait(0.5)
             self._raise()
         waited = time.perf_counter() - start
@@ -169,9 +181,32 @@ class LiveEngine:
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
+        closes = [t for t, _, _ in batch if slam.loop_closure is not None and slam.is_keyframe(t)]
+        if closes:
+            loops = self._close_loops(closes[-1])
+            if loops:
+                with self._cond:
+                    self.loops.extend(loops)
         slam.publish(newest)
         self.mapper_steps += 1
         self.mapper_seconds += time.perf_counter() - start
         with self._cond:
             self._mapped = newest
             self._cond.notify_all()
+
+    def _close_loops(self, t: int) -> list:
+        """Loop closure after keyframe t (the tracker runs on meanwhile); frames handed over and not
+        yet mapped get their corrected poses."""
+        with self._cond:
+            self._closing_loop = True
+            self._cond.notify_all()
+        try:
+            loops = self.slam.close_loops(t)
+            if loops:
+                with self._poses, self._cond:
+                    self._pending = deque((k, f, self.slam.w2cs[k]) for k, f, _ in self._pending)
+            return loops
+        finally:
+            with self._cond:
+                self._closing_loop = False
+                self._cond.notify_all()

@@ -239,6 +239,10 @@ class Pipeline:
     def metrics(self) -> dict:
         out = summary(self)
         out.update(self.engine.stats())
+        closer = self.slam.loop_closure
+        if closer is not None:
+            out.update(loops_closed=len(closer.loops), loops_rejected=closer.rejected,
+                       loops_rejected_by=dict(closer.rejected_by), loops=list(closer.loops))
         out.update(self.evaluate())
         out["per_frame"] = self.records
         return out

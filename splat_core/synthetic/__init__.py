@@ -6,15 +6,17 @@
     hard.py       HardCapture: the same with one disturbance (jump, covered lens, fast turn)
     corridor.py   CorridorSource: a 40 m corridor walk that keeps exploring (long runs)
     phone.py      SyntheticPhoneCapture: the room as a phone records it (large colour, small depth)
+    loop.py       LoopSource: one lap of the room and back (loop closure), DriftingOdometry
 """
 
 from .corridor import PERIOD, CorridorSource
 from .hard import HARD_KINDS, HardCapture, turn_away
+from .loop import DriftingOdometry, LoopSource
 from .paths import ORBIT_CENTRE, camera_path, default_intrinsics, look_at_c2w
 from .phone import SyntheticPhoneCapture
 from .scene import FPS, ROOM_MAX, ROOM_MIN, Box, Sphere, SyntheticScene
 from .source import SyntheticSource, add_depth_noise, hole_mask, render_view
 
-__all__ = ["PERIOD", "CorridorSource", "HARD_KINDS", "HardCapture", "turn_away", "ORBIT_CENTRE", "camera_path",
+__all__ = ["PERIOD", "CorridorSource", "DriftingOdometry", "LoopSource", "HARD_KINDS", "HardCapture", "turn_away", "ORBIT_CENTRE", "camera_path",
            "default_intrinsics", "look_at_c2w", "SyntheticPhoneCapture", "FPS", "ROOM_MAX", "ROOM_MIN", "Box",
            "Sphere", "SyntheticScene", "SyntheticSource", "add_depth_noise", "hole_mask", "render_view"]

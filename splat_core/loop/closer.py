@@ -1,0 +1,169 @@
+"""Online loop closure, run after each new keyframe (inline in the sequential engine, in the mapper
+thread of the live engine):
+
+    graph.add(odometry edge: previous keyframe -> this one)
+    old    = detect(this keyframe)                  old keyframes it sees again / looks like (detect.py)
+    loop   = verify(this keyframe, old)             ORB + depth RANSAC, then the tracker's alignment
+                                                    against the old map (verify.py); strict
+    graph.add(loop edge)
+    if the loop disagrees with the current poses:
+        c2ws = optimise(graph)                      gtsam, robust kernels (pose_graph.py)
+        move keyframes, frame poses and Gaussians   by their keyframe's correction (anchors.py)
+        re-map the loop's keyframes briefly         the seams
+
+State (odometry and loop edges, accepted loops, the cool-down) goes into the checkpoint as JSON;
+the anchors are the Gaussians' birth frames, already in the map. Randomness comes from a
+generator seeded by (seed, frame number), and ORB features are recomputed from the keyframes' stored
+images, so a resumed sequential run closes the same loops bit for bit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+
+import numpy as np
+import torch
+
+from ..camera import invert_pose
+from ..config import LoopClosureConfig
+from ..gaussians import Gaussians
+from ..tracking import sparse_step
+from . import anchors, detect, pose_graph
+from .verify import pose_difference, verify
+
+
+class LoopClosure:
+    def __init__(self, config: LoopClosureConfig, seed: int = 0):
+        self.config, self.seed = config, seed
+        self.edges: list[pose_graph.Edge] = []      # odometry and loop edges between keyframe positions
+        self.loops: list[dict] = []                 # accepted loops with their evidence
+        self.rejected = 0                           # candidates verification turned down
+        self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
+        self.quiet_until = -1                       # keyframe position before which nothing is detected
+        self._features: dict[int, detect.Features] = {}
+        self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
+
+    # -------------------------------------------------------------- one keyframe
+    def after_keyframe(self, slam, frame_index: int) -> list[dict]:
+        """Called once frame `frame_index` became the newest keyframe and was mapped; returns the
+        loops accepted now (at most one)."""
+        kfs = list(slam.keyframes)
+        j = len(kfs) - 1
+        if j < 0 or kfs[j].frame_index != frame_index:
+            return []
+        c = self.config
+        if j > 0:
+            self.edges.append(pose_graph.odometry_edge(j - 1, j, invert_pose(kfs[j - 1].w2c), invert_pose(kfs[j].w2c),
+                                                       c.odometry_sigma, c.odometry_sigma_rel, c.odometry_sigma_deg))
+        if j < self.quiet_until or c.max_candidates == 0:
+            return []
+        frames = np.array([kf.frame_index for kf in kfs], np.int64)
+        old = np.flatnonzero(frames <= frame_index - c.min_gap_frames)
+        if old.size == 0:
+            return []
+        start = time.perf_counter()
+        current = kfs[j]
+        depth = current.depth
+        means = slam.map.means.detach().cpu().numpy()
+        owner = detect.birth_keyframe(slam.map.birth_frame.cpu().numpy(), frames)
+        visible = detect.visible_by_keyframe(means, owner, len(kfs), depth, current.w2c, slam.intrinsics)
+        feats = self.features(j, current)
+        orb = np.zeros(len(kfs))
+        for k in old:
+            orb[k] = len(detect.match(feats, self.features(int(k), kfs[k])))
+        picks = detect.candidates(j, frames, visible, orb, c.min_gap_frames, c.min_visible, c.min_orb_matches,
+                                  c.max_candidates)
+        if not picks:
+            return []
+        rng = np.random.default_rng([self.seed, frame_index, 7])
+        color = current.color
+        for k in picks:
+            verdict = self._verify(slam, kfs, j, k, feats, color, depth, frame_index, rng, visible[k])
+            if verdict.accepted:
+                record = self._close(slam, kfs, j, k, verdict, visible[k], orb[k], start)
+                self.quiet_until = j + 1 + c.cooldown_keyframes
+                return [record]
+            self.rejected += 1
+            self.rejected_by[verdict.reason] = self.rejected_by.get(verdict.reason, 0) + 1
+        return []
+
+    def features(self, k: int, kf) -> detect.Features:
+        if k not in self._features:
+            self._features[k] = detect.orb_features(kf.images8()[0])
+        return self._features[k]
+
+    def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng, visible_k):
+        c, tc = self.config, slam.config.tracking
+        old_kf = kfs[k]
+        keep = slam.map.birth_frame <= frame_index - c.min_gap_frames
+        g = slam.map.tensors(detach=True)
+        idx = torch.nonzero(keep.to(g.means.device)).flatten()
+        old_map = Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
+        align = dict(levels=tc.align_levels, iterations=max(10, tc.align_iterations), passes=2,
+                     color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold, near=slam.renderer.near,
+                     depth_noise=tc.align_depth_noise,
+                     live_stride=sparse_step(tc.align_stride, slam.intrinsics, tc.align_min_points))
+        c2w_old = invert_pose(old_kf.w2c)
+        estimate = invert_pose(kfs[j].w2c) if visible_k >= c.min_visible else None
+        return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
+                      old_map, slam.intrinsics, c, rng, align, estimate)
+
+    def _close(self, slam, kfs, j, k, verdict, visible, orb, start) -> dict:
+        c = self.config
+        c2w_old, c2w_cur = invert_pose(kfs[k].w2c), invert_pose(kfs[j].w2c)
+        measured = invert_pose(c2w_old) @ verdict.c2w_current
+        sigma_m = float(np.clip(verdict.evidence["rmse_m"], 0.003, 0.02))
+        self.edges.append(pose_graph.Edge(k, j, measured, sigma_m, 0.3, robust=True))
+        dt, dr = pose_difference(c2w_cur, verdict.c2w_current)
+        applied = dt > c.min_correction or dr > c.min_correction_deg
+        moved_m = moved_deg = 0.0
+        inconsistent: list = []
+        if applied:
+            old_c2ws = [invert_pose(kf.w2c) for kf in kfs]
+            new_c2ws, robust = pose_graph.optimise(old_c2ws, self.edges)
+            inconsistent = [self.edges[n].a for n in robust]
+            moved_m, moved_deg = pose_difference(old_c2ws[j], new_c2ws[j])
+            with self.apply_lock:
+                self.apply(slam, kfs, old_c2ws, new_c2ws)
+            self.remap(slam, kfs, j, k)
+        record = dict(keyframes=[int(k), int(j)], frames=[kfs[k].frame_index, kfs[j].frame_index],
+                      inliers=verdict.evidence["inliers"], evidence=verdict.evidence,
+                      visible=float(visible), orb_matches=int(orb),
+                      disagreement_cm=100 * dt, disagreement_deg=dr, applied=bool(applied),
+                      correction_cm=100 * moved_m, correction_deg=moved_deg, inconsistent_loops=inconsistent,
+                      seconds=time.perf_counter() - start)
+        self.loops.append(record)
+        return record
+
+    @staticmethod
+    def apply(slam, kfs, old_c2ws, new_c2ws) -> None:
+        """Move keyframes, frame poses and Gaussians by the keyframes' corrections."""
+        frames = np.array([kf.frame_index for kf in kfs], np.int64)
+        C = anchors.corrections(old_c2ws, new_c2ws)
+        for kf, c2w in zip(kfs, new_c2ws):
+            kf.w2c = invert_pose(c2w)
+        anchors.move_poses(slam.w2cs, frames, C)
+        anchors.move_gaussians(slam.map, frames, C)
+
+    def remap(self, slam, kfs, j, k) -> None:
+        """A short mapping run over the loop's two keyframes and their neighbours."""
+        if self.config.remap_iterations == 0:
+            return
+        near = [p for p in (j, j - 1, k, k + 1, k - 1, j - 2) if 0 <= p < len(kfs)]
+        chosen = list(dict.fromkeys(near))[: slam.config.mapping.window_size]
+        slam.optimise([slam.keyframe_view(kfs[p]) for p in chosen], iterations=self.config.remap_iterations)
+
+    # -------------------------------------------------------------- checkpoints
+    def state(self) -> str:
+        return json.dumps(dict(edges=[e.to_dict() for e in self.edges], loops=self.loops, rejected=self.rejected,
+                               rejected_by=self.rejected_by, quiet_until=self.quiet_until))
+
+    def load_state(self, state: str) -> None:
+        s = json.loads(state)
+        self.edges = [pose_graph.Edge.from_dict(e) for e in s["edges"]]
+        self.loops, self.rejected, self.quiet_until = list(s["loops"]), int(s["rejected"]), int(s["quiet_until"])
+        self.rejected_by = dict(s.get("rejected_by", {}))
+        self._features.clear()
+

@@ -1,0 +1,43 @@
+"""Run SplaTAM on a synthetic loop with drifting odometry, with or without loop closure, and measure
+(ATE, map depth error against the noise-free depth). Used by benchmarks/loops.py and the tests."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import torch
+
+from .. import metrics as M
+from ..camera import invert_pose
+from ..config import Config
+from ..slam import SplaTAM
+from ..synthetic.loop import DriftingOdometry
+
+
+def run_drifting(source, config: Config, loop_closure: bool, bias_m: float, bias_deg: float,
+                 eval_every: int = 10) -> dict:
+    config = dataclasses.replace(config, loop_closure=dataclasses.replace(config.loop_closure, enabled=loop_closure))
+    slam = SplaTAM(config, source.intrinsics)
+    slam.total_frames = len(source)
+    odo = DriftingOdometry(source, bias_m, bias_deg)
+    start = time.perf_counter()
+    for t in range(len(source)):
+        slam.process(source[t], w2c_given=odo.w2c(t, slam.w2cs))
+    seconds = time.perf_counter() - start
+    est = np.array([invert_pose(w) for w in slam.w2cs])
+    ref = np.array(odo.ref)
+    depth_err = []
+    g = slam.map.tensors(detach=True)
+    for t in range(0, len(source), eval_every):
+        _, exact = source.render_view(source.reference_c2w()[t])
+        with torch.no_grad():      # at the estimated pose: a doubled surface shows as a depth error
+            out = slam.renderer.render_visible(g, source.intrinsics, slam.w2cs[t])
+        d = out.depth.cpu().numpy()
+        ok = (exact > 0) & (out.alpha.cpu().numpy() > 0.5)
+        depth_err.append(float(np.mean(np.abs(d[ok] / np.maximum(out.alpha.cpu().numpy()[ok], 1e-6) - exact[ok]))))
+    return dict(loop_closure=loop_closure, frames=len(source), ate_rmse_cm=100 * M.ate_rmse(est, ref),
+                ate_max_cm=100 * float(M.ate_errors(est, ref).max()),
+                map_depth_error_cm=100 * float(np.mean(depth_err)), loops=list(slam.all_loops()),
+                seconds=seconds, slam=slam)
