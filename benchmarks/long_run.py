@@ -18,7 +18,7 @@ frames at twice hand-held speed) it keeps seeing walls it has not seen, and the 
 them; `revisit` is the same growth from the end of that first orbit, while the camera only sees
 again what the map holds.
 
-time: the corridor (synthetic_corridor.py), full SLAM with the given preset, run folder and
+time: the corridor (splat_core/synthetic/corridor.py), full SLAM with the given preset, run folder and
 checkpoints as `splatam run` writes them; the median s/frame (records' wall_seconds) of frames
 [N/10, N/5) against [0.9 N, N) (100-200 and 900-1000 for N = 1000) and their ratio.
 

@@ -88,7 +88,7 @@ def real_rows(args, work: Path) -> list[dict]:
 def synthetic_rows(args) -> list[dict]:
     from splat_core.config import load_config
     from splat_core.loop.evaluate import run_drifting
-    from splat_core.synthetic_corridor import CorridorSource
+    from splat_core.synthetic import CorridorSource
     from splat_core.synthetic import LoopSource
 
     rows = []

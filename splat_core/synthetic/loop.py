@@ -10,7 +10,7 @@
 `DriftingOdometry` stands in for a tracker that drifts: each frame's pose is the previous
 *estimated* pose composed with the exact frame-to-frame motion and a constant small error, so a
 correction that loop closure makes to the estimate carries forward as it would with real tracking.
-`corridor` in synthetic_corridor.py is the capture that never comes back (no loop may close there).
+`corridor` in corridor.py is the capture that never comes back (no loop may close there).
 """
 
 from __future__ import annotations
