@@ -21,16 +21,10 @@ from app.batch.report import trajectory_svg
 from app.batch.summary import _loops, make_row, to_csv
 from app.cli import splatam_main
 from splat_core.errors import InputError
-import capture_fixtures as fixtures  # tests/ is on sys.path under pytest
+from helpers import captures as fixtures
+from helpers.configs import TINY
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = """base: cpu
-resolution: [64, 48]
-checkpoint_every: 3
-eval_every: 2
-tracking: {iterations: 6}
-mapping: {iterations: 3, first_frame_iterations: 6, window_size: 4}
-"""
 
 
 def _broken(path: Path) -> Path:

@@ -14,14 +14,8 @@ from splat_core.io.ply import read_ply
 from splat_core.io.trajectory import read_tum_trajectory
 from splat_core.run import Pipeline, open_input
 from helpers import captures as fixtures
+from helpers.configs import TINY
 
-TINY = """base: cpu
-resolution: [64, 48]
-checkpoint_every: 3
-eval_every: 2
-tracking: {iterations: 6}
-mapping: {iterations: 3, first_frame_iterations: 6, window_size: 4}
-"""
 
 
 @pytest.fixture()

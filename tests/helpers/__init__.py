@@ -5,4 +5,5 @@
     nerfcapture_publisher.py a NeRFCapture app stand-in publishing frames over DDS (loopback)
     viewer.py                a scripted SlamRun (FakePipeline), test maps, polling helpers
     engine.py                small synthetic sources and maps for the engine's unit tests
+    configs.py               settings files the run tests share (TINY)
 """
