@@ -20,7 +20,7 @@ from splat_core.camera import Intrinsics, quat_to_rotmat_np, w2c_from_quat_trans
 from splat_core.gaussians import Gaussians
 from splat_core.render import project as project_mod
 from splat_core.render.project import clamp_limits, project_gaussians, project_gaussians_torch
-from test_render import (INTR, NEAR, _camera_to_world, _gradcheck_scene, _pose, _render_with_grads,
+from helpers.render_scenes import (INTR, NEAR, _camera_to_world, _gradcheck_scene, _pose, _render_with_grads,
                          _scene)
 
 VALUE_TOL = {torch.float64: 1e-12, torch.float32: 1e-5}

@@ -14,7 +14,7 @@ import torch
 from splat_core.camera import w2c_from_quat_trans
 from splat_core.gaussians import Gaussians
 from splat_core.render import render, render_pixels
-from test_render import GRAD_NAMES, INTR, NEAR, _assert_close, _gradcheck_scene, _leaves, _pose, _scene
+from helpers.render_scenes import GRAD_NAMES, INTR, NEAR, _assert_close, _gradcheck_scene, _leaves, _pose, _scene
 
 
 def _pixels(seed=0, n=60):

@@ -13,7 +13,7 @@ from splat_core.errors import InputError
 from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 from splat_core.metrics import psnr
 
-from test_viewer import make_run, run_cli
+from helpers.runs import make_run, run_cli
 
 ffmpeg = pytest.importorskip("imageio_ffmpeg", reason="imageio-ffmpeg not installed (pip install '.[video]')")
 

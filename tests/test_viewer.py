@@ -14,10 +14,11 @@ import pytest
 from app.snapshot import keyframe_buckets
 from app.worker import SlamWorker
 from splat_core.errors import InputError
-from splat_core.io.ply import read_ply, write_ply
-from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
+from splat_core.io.ply import read_ply
+from splat_core.io.trajectory import read_tum_trajectory
 
 from helpers.viewer import FakePipeline, blob_map, wait_until
+from helpers.runs import make_run, run_cli
 
 
 def test_keyframe_buckets_show_the_map_as_it_was():
@@ -339,16 +340,6 @@ def test_points_while_running_then_splats(server):
         MapLayer(server, running_style="dots")
 
 
-def make_run(tmp_path, n=400):
-    run = tmp_path / "run"
-    m = blob_map(n, 0)
-    write_ply(run / "map.ply", m.to_numpy())
-    c2w = np.stack([np.eye(4)] * 3)
-    c2w[:, 0, 3] = [0.0, 0.1, 0.2]
-    write_tum_trajectory(run / "trajectory.txt", [0.0, 0.1, 0.2], c2w)
-    return run
-
-
 def test_browse_mode_snapshot(tmp_path):
     from app.browse import load_run
 
@@ -358,24 +349,6 @@ def test_browse_mode_snapshot(tmp_path):
     assert load_run(run / "map.ply").num_gaussians == 400
     with pytest.raises(InputError, match="map.ply"):
         load_run(tmp_path)
-
-
-class CliResult:
-    def __init__(self, returncode, stdout, stderr):
-        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
-
-
-def run_cli(*argv):
-    """`splatam ARGS` in process (a subprocess would spend seconds importing torch)."""
-    import contextlib
-    import io
-
-    from app.cli import splatam_main
-
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        code = splatam_main(list(argv))
-    return CliResult(code, out.getvalue(), err.getvalue())
 
 
 def test_export_command(tmp_path):

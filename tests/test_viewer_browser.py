@@ -13,6 +13,7 @@ import pytest
 from helpers.viewer import FakePipeline, wait_until
 
 from common import CHROMIUM, changed_pixels  # noqa: F401 (benchmarks/common.py, on sys.path via conftest)
+from helpers.browser import connect, frames_shown, green, look, poll_render, red, render
 
 pytestmark = [
     pytest.mark.browser,
@@ -20,64 +21,20 @@ pytestmark = [
 ]
 
 
-def connect(browser, server):
-    """A page on the server, connected; returns (page, client, external requests list)."""
-    page = browser.new_page(viewport={"width": 1000, "height": 700}, accept_downloads=True)
-    external, errors = [], []
-    page.on("request", lambda r: external.append(r.url) if not r.url.startswith(
-        ("http://127.0.0.1", "ws://127.0.0.1", "data:", "blob:")) else None)
-    page.on("pageerror", lambda e: errors.append(str(e)))
-    page.goto(f"http://127.0.0.1:{server.get_port()}/")
-    page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
-    client = wait_until(lambda: next(iter(server.get_clients().values()), None), 60, what="client")
-    wait_until(lambda: client.camera.image_width > 0, 30, what="camera")
-    page.external_requests, page.errors = external, errors
-    return page, client
 
 
-def look(client, position, look_at):
-    with client.atomic():
-        client.camera.up_direction = (0.0, -1.0, 0.0)
-        client.camera.position = position
-        client.camera.look_at = look_at
 
 
-def render(client, h=150, w=200):
-    return np.asarray(client.get_render(h, w, timeout=60), np.int32)
 
 
-def count(img, lo, hi):
-    lo, hi = np.asarray(lo), np.asarray(hi)
-    rgb = img[..., :3]
-    return int(np.all((rgb >= lo) & (rgb <= hi), axis=-1).sum())
 
 
-def red(img):
-    return count(img, (150, 0, 0), (255, 90, 90))
 
 
-def green(img):
-    return count(img, (0, 140, 0), (110, 255, 110))
 
 
-def poll_render(client, predicate, timeout=60, what="render"):
-    last = {}
-
-    def attempt():
-        last["img"] = render(client)
-        return predicate(last["img"])
-    try:
-        wait_until(attempt, timeout, interval=0.3, what=what)
-    except AssertionError:
-        import cv2
-        cv2.imwrite(f"/tmp/viewer_test_{what.replace(' ', '_')}.png", last["img"][..., :3][..., ::-1].astype(np.uint8))
-        raise AssertionError(f"{what}: last render red={red(last['img'])} green={green(last['img'])}")
-    return last["img"]
 
 
-def frames_shown(page) -> int:
-    row = page.locator("label", has_text="Frames processed").first.locator("xpath=ancestor::*[.//input][1]")
-    return int(row.locator("input").first.input_value() or 0)
 
 
 def test_live_slam_pause_resume(browser, server, tmp_path):

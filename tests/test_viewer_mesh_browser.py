@@ -12,8 +12,10 @@ from splat_core.config import load_config
 from splat_core.run import Pipeline
 from splat_core.synthetic import SyntheticSource
 
-from test_viewer_browser import connect, look, pytestmark, render  # noqa: F401 (marks)
+from helpers.browser import connect, look, render
 from helpers.viewer import wait_until
+
+pytestmark = [pytest.mark.browser]
 
 TINY = """base: cpu
 resolution: [64, 48]

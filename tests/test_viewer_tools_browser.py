@@ -10,9 +10,11 @@ import pytest
 
 from splat_core.camera import Intrinsics, invert_pose, pose_matrix, project, quat_to_rotmat_np
 
-from test_viewer_browser import connect, look, pytestmark  # noqa: F401 (marks)
-from test_viewer_tools import A, B, snapshot_of, two_walls
+from helpers.maps import A, B, snapshot_of, two_walls
+from helpers.browser import connect, look
 from helpers.viewer import wait_until
+
+pytestmark = [pytest.mark.browser]
 
 
 def click_at(page, client, point) -> None:

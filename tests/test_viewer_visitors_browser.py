@@ -13,8 +13,10 @@ import urllib.request
 import numpy as np
 import pytest
 
+from helpers.browser import look, render
 from helpers.viewer import FakePipeline, wait_until
-from test_viewer_browser import look, pytestmark, render  # noqa: F401 (marks)
+
+pytestmark = [pytest.mark.browser]
 
 GREY = 0.5
 
@@ -251,7 +253,7 @@ def test_token_refuses_then_serves_and_view_only_page(browser):  # noqa: F811
     from app.commands.viewer import start_server
     from app.viewer import StaticSource, build_viewer
     from app.viewer.access import Access
-    from test_viewer_tools import snapshot_of, two_walls
+    from helpers.maps import snapshot_of, two_walls
 
     access = Access.for_host("127.0.0.2", share="view")
     server = start_server("127.0.0.2", 0, access)
