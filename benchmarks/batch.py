@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
 from app.batch import state  # noqa: E402
-from benchmarks.slam import machine  # noqa: E402
+from benchmarks.common import machine  # noqa: E402
 
 TINY = """base: cpu
 resolution: [64, 48]

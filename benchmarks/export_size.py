@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from slam import machine  # noqa: E402
+from common import machine  # noqa: E402
 
 from app.exports import FORMATS, EXPORT_SUFFIXES, export_map, load_arrays  # noqa: E402
 from splat_core.io.compressed import spatial_order  # noqa: E402

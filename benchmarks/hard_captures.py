@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.slam import machine  # noqa: E402
+from benchmarks.common import machine  # noqa: E402
 from splat_core import metrics as M  # noqa: E402
 from splat_core.config import load_config  # noqa: E402
 from splat_core.run import Pipeline  # noqa: E402

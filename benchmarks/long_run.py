@@ -43,7 +43,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SPEED = 2.0          # memory: the room's camera at twice hand-held speed
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from slam import machine  # noqa: E402
+from common import machine  # noqa: E402
 
 
 def rss_mb() -> float:

@@ -30,7 +30,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from slam import DATA, machine, run_one, split_ate_cm  # noqa: E402
+from common import DATA, machine_line as machine  # noqa: E402
+from slam import run_one, split_ate_cm  # noqa: E402
 
 
 def trajectory_errors(run_dir: Path, src, breaks: list[int], segment: int) -> dict:

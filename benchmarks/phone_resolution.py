@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import torch  # noqa: E402
 
-from benchmarks.slam import machine  # noqa: E402
+from benchmarks.common import machine  # noqa: E402
 from splat_core import metrics as M  # noqa: E402
 from splat_core.config import load_config  # noqa: E402
 from splat_core.run import Pipeline  # noqa: E402

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from slam import machine  # noqa: E402
+from common import machine  # noqa: E402
 
 from splat_core.refine import RefineJob, RefineSettings  # noqa: E402
 from splat_core.refine.density import DensitySettings  # noqa: E402

@@ -39,7 +39,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import DATA, REAL, ROOT, machine_line as machine  # noqa: E402
+from common import DATA, REAL, ROOT, machine_line  # noqa: E402
 
 
 def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: str,
@@ -124,7 +124,7 @@ def main() -> None:
                 row = {"sequence": seq, "preset": preset, "engine": engine,
                        **({"code": str(code)} if checkout else {}),
                        **run_one(path, preset, out, args.max_frames, args.device, engine, code),
-                       "machine": machine(), "run_dir": str(out)}
+                       "machine": machine_line(), "run_dir": str(out)}
                 src, breaks = checks.get(seq, (None, []))
                 if breaks:
                     row["reference_breaks"] = breaks

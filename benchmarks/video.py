@@ -27,7 +27,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from render import machine  # noqa: E402  (benchmarks/render.py)
+from common import machine  # noqa: E402
 
 
 def main(argv=None) -> int:

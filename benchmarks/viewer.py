@@ -42,7 +42,7 @@ from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_
 from app.viewer.scene import MapLayer  # noqa: E402
 from splat_core.gaussians import GaussianMap  # noqa: E402
 
-from common import CHROMIUM, CHROMIUM_ARGS, changed_pixels  # noqa: E402
+from common import CHROMIUM, CHROMIUM_ARGS, changed_pixels, machine  # noqa: E402
 
 
 def synthetic_map(n: int, keyframes: int, seed: int = 0) -> GaussianMap:
@@ -275,7 +275,7 @@ def main() -> int:
     stdout = sys.stdout
     if args.json:            # viser prints its banner for every server: keep stdout to the JSON
         sys.stdout = sys.stderr
-    out = dict(machine=f"{platform.machine()} {platform.processor()}".strip(), python=platform.python_version(),
+    out = dict(machine=machine(), python=platform.python_version(),
                server=[], client=[],
                client_caveat="headless Chromium with SwiftShader software WebGL: worst case, not GPU figures")
     for n in [int(s) for s in args.sizes.split(",") if s]:
