@@ -87,20 +87,15 @@ class ExportPanel:
             raise InputError("there is no trajectory to export yet")
         if not self._busy.acquire(blocking=False):
             return None
-        if fmt == "mesh":
-            try:
-                self.button.disabled = True
-                self.info.content = "Building the mesh…"
-                path = self.mesh.export(self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-")))
-                self.exports += 1
-                self.info.content = f"{path.name}: {path.stat().st_size:,} bytes, written to `{path}`"
-                return path
-            finally:
-                self.button.disabled = False
-                self._busy.release()
         try:
             self.button.disabled = True
             folder = self.export_dir or Path(tempfile.mkdtemp(prefix="splatam-export-"))
+            if fmt == "mesh":
+                self.info.content = "Building the mesh…"
+                path = self.mesh.export(folder)
+                self.exports += 1
+                self.info.content = f"{path.name}: {path.stat().st_size:,} bytes, written to `{path}`"
+                return path
             if fmt == "trajectory":
                 from splat_core.io.atomic import write_bytes_atomic
                 path = write_bytes_atomic(folder / "trajectory.txt", trajectory_bytes(snap))

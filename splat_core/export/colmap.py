@@ -22,7 +22,7 @@ import numpy as np
 
 from ..camera import Intrinsics, rotmat_to_quat
 from .folder import atomic_folder
-from .frames import choose_frames, export_frames, export_intrinsics, open_source, write_color
+from .frames import export_frames, prepare, write_color
 from .seed_points import MAX_POINTS, add_observations, seed_points
 
 PIXEL_OFFSET = 0.5   # COLMAP pixel coordinate = ours + 0.5
@@ -46,10 +46,7 @@ def write_colmap(run, out_dir, frames: str = "keyframes", source=None, input_ove
     """Write the COLMAP model and images atomically to out_dir; returns a summary dict.
 
     `source`: an open capture (default: the run's recorded one, or `input_override`)."""
-    indices = choose_frames(run, frames)
-    if source is None:
-        source = open_source(run, frames, input_override)
-    intr = export_intrinsics(run, source)
+    indices, source, intr = prepare(run, frames, source, input_override)
     seeds = seed_points(run.map.to_numpy(), max_points=max_points)
     out_dir = Path(out_dir)
     with atomic_folder(out_dir, "sparse/0/images.txt") as tmp:

@@ -64,6 +64,15 @@ def open_source(run, which: str, override=None):
     return source
 
 
+def prepare(run, frames: str, source=None, input_override=None):
+    """What the COLMAP and nerfstudio exports start from: the chosen frame indices, the capture to
+    re-read them from, and the intrinsics they are written at."""
+    indices = choose_frames(run, frames)
+    if source is None:
+        source = open_source(run, frames, input_override)
+    return indices, source, export_intrinsics(run, source)
+
+
 def export_frames(run, indices: list[int], source) -> Iterator[ExportFrame]:
     """Each chosen frame's images (capture resolution; stored keyframes when `source` is None)."""
     if source is None:

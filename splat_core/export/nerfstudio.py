@@ -27,7 +27,7 @@ import numpy as np
 from ..camera import invert_pose
 from ..io.atomic import write_text_atomic
 from .folder import atomic_folder
-from .frames import choose_frames, export_frames, export_intrinsics, open_source, write_color
+from .frames import export_frames, prepare, write_color
 from .seed_points import MAX_POINTS, seed_points, write_points_ply
 
 PIXEL_OFFSET = 0.5
@@ -50,10 +50,7 @@ def depth_png(depth: np.ndarray) -> bytes:
 def write_nerfstudio(run, out_dir, frames: str = "keyframes", source=None, input_override=None,
                      max_points: int = MAX_POINTS, progress=None) -> dict:
     """Write transforms.json, images, depth and seed points atomically to out_dir; returns a summary."""
-    indices = choose_frames(run, frames)
-    if source is None:
-        source = open_source(run, frames, input_override)
-    intr = export_intrinsics(run, source)
+    indices, source, intr = prepare(run, frames, source, input_override)
     seeds = seed_points(run.map.to_numpy(), max_points=max_points)
     out_dir = Path(out_dir)
     with atomic_folder(out_dir, "transforms.json") as tmp:
