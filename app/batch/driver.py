@@ -124,7 +124,9 @@ class Batch:
         tally = counts(rows)
         self.say(", ".join(f"{n} {s}" for s, n in tally.items() if n)
                  + f"; summary: {self.out_root / 'summary.md'}, report: {self.out_root / 'index.html'}")
-        if interrupted:
+        # Ctrl-C reaches the whole process group: a run can stop (and report "interrupted") before the
+        # KeyboardInterrupt surfaces here, or distributed's event loop may swallow it; either way it was one.
+        if interrupted or tally.get("interrupted"):
             self.say("interrupted: finished runs are kept; the same command resumes the rest")
             return 130
         return min(tally["failed"], MAX_EXIT_CODE)
