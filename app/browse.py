@@ -2,7 +2,8 @@
 
 A run folder holds map.ply and trajectory.txt (required: map.ply); when it also has
 checkpoint/, the checkpoint gives birth frames, keyframes (poses and images) and the working
-intrinsics, so scrubbing works as in a live run. metrics.json, when present, gives the ATE.
+intrinsics, so scrubbing works as in a live run. metrics.json, when present, gives the ATE and
+the loops closed (its `loops` list, shown as edges between keyframes and in the status panel).
 Reading follows RunFolder's tolerant readers: a missing or unreadable extra is left out.
 """
 
@@ -31,7 +32,7 @@ def load_run(path) -> MapSnapshot:
     gaussians = read_map_file(map_path_of(path))
     timestamps, c2w = np.zeros(0), np.zeros((0, 4, 4))
     keyframes: tuple = ()
-    intrinsics = ate = None
+    intrinsics = ate = loops = None
     if path.is_dir():
         folder = RunFolder(path)
         timestamps, c2w = folder.read_trajectory()
@@ -44,10 +45,13 @@ def load_run(path) -> MapSnapshot:
         if ckpt is not None and intrinsics is not None:
             keyframes = tuple(KeyframeView(kf.frame_index, frozen(invert_pose(kf.w2c)), frozen(make_thumbnail(kf.color)), kf)
                               for kf in folder.keyframes(ckpt, intrinsics))
-        ate = (folder.read_metrics() or {}).get("ate_rmse_cm")
+        metrics = folder.read_metrics() or {}
+        ate = metrics.get("ate_rmse_cm")
+        if isinstance(metrics.get("loops"), list):      # written when the run had loop closure on
+            loops = tuple(r for r in metrics["loops"] if isinstance(r, dict))
     return MapSnapshot(
         version=1, state="browse", near_plane=near_plane_of(path), frame_index=len(c2w) - 1, total_frames=len(c2w),
         map_version=1, gaussians=freeze_gaussians(gaussians), keyframes=keyframes, intrinsics=intrinsics,
         timestamps=frozen(timestamps), estimated_c2w=frozen(c2w), history={},
         ate_cm=float(ate) if ate is not None else None, message=str(path),
-        out_dir=path if path.is_dir() else None)
+        out_dir=path if path.is_dir() else None, loops=loops)

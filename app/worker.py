@@ -62,7 +62,7 @@ class SlamWorker(threading.Thread):
         self._map_version = 0
         self._map_arrays = freeze_gaussians(empty_gaussians())
         self._map_copied_at = -1e9
-        self._keyframe_views: dict[int, KeyframeView] = {}
+        self._keyframe_views: dict[int, tuple] = {}     # frame -> (w2c it was made at, KeyframeView)
         self._history = {k: [] for k in HISTORY_KEYS}
         self._timestamps: list[float] = []
         self._live: LiveView | None = None
@@ -200,15 +200,25 @@ class SlamWorker(threading.Thread):
 
     # ------------------------------------------------------------------ snapshots
     def _keyframes(self) -> tuple:
+        """A view per keyframe, made again when its pose changed (a loop correction moves keyframes)."""
         views = []
         for kf in self.pipeline.keyframes():
-            view = self._keyframe_views.get(kf.frame_index)
-            if view is None:
-                c2w = np.linalg.inv(np.asarray(kf.w2c, np.float64))
-                view = KeyframeView(int(kf.frame_index), frozen(c2w), frozen(make_thumbnail(kf.color)), kf)
-                self._keyframe_views[kf.frame_index] = view
+            w2c = np.array(kf.w2c, np.float64)
+            w2c_seen, view = self._keyframe_views.get(kf.frame_index, (None, None))
+            if view is None or not np.array_equal(w2c, w2c_seen):
+                thumbnail = view.thumbnail if view is not None else frozen(make_thumbnail(kf.color))
+                view = KeyframeView(int(kf.frame_index), frozen(np.linalg.inv(w2c)), thumbnail, kf)
+                self._keyframe_views[kf.frame_index] = (w2c, view)
             views.append(view)
         return tuple(views)
+
+    def _loops(self) -> tuple | None:
+        """The loops of the map version shown (None: loop closure is off in this run)."""
+        closure = getattr(self.pipeline.config, "loop_closure", None)
+        if closure is None or not closure.enabled:
+            return None
+        version = getattr(self._map_arrays, "version", None)
+        return tuple(getattr(version, "loops", ()) or ())
 
     def _publish(self, force_map: bool = False, message: str = "") -> None:
         pipe = self.pipeline
@@ -240,6 +250,6 @@ class SlamWorker(threading.Thread):
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,
                 message=message, out_dir=self.out_dir,
                 skipped_frames=tuple((s["source_index"], s["reason"]) for s in pipe.skipped),
-                lost_frames=tuple(int(x["index"]) for x in pipe.lost),
+                lost_frames=tuple(int(x["index"]) for x in pipe.lost), loops=self._loops(),
             )
             self._cond.notify_all()

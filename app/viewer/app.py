@@ -36,6 +36,7 @@ from .assets import WebAssets, apply_theme, load_assets
 from .control_gui import ControlGui
 from .export_panel import ExportPanel
 from .feed import SnapshotFeed, controls_of
+from .loops import LoopLayer
 from .mesh_layer import MeshLayer
 from .measure import MeasureTool
 from .novel_view import MODES, NovelView, RenderService
@@ -94,6 +95,7 @@ class ViewerApp:
                                          width=scrub_width, on_change=self._on_page_view_changed)
         self.camera_layer = CameraLayer(server, self.assets.colors, self.scrubber.on_frustum_click)
         self.scrubber.camera_layer = self.camera_layer
+        self.loop_layer = LoopLayer(server, self.assets.colors)
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
                              draw_while_running, controls=self.control_gui)
         self.panels.first_note = first_note
@@ -226,6 +228,8 @@ class ViewerApp:
         state_changed = prev is None or prev.state != snap.state
         # Consolidate (refresh every chunk) when the run pauses, ends, or in browse mode.
         force = state_changed and snap.state in ("paused", "finished", "stopped", "browse")
+        # A closed loop moved keyframes and the map: redraw them at once, whatever the policy.
+        force = force or (prev is not None and len(snap.loops or ()) != len(prev.loops or ()))
         # The 3D scene (map, cameras, trajectories) follows the map update policy, and shows at once
         # when tracking is lost or found: any scene message makes viser's page redraw (docs/viewer.md).
         if force or self.map_layer.follows(snap) or snap.tracking_lost != self.camera_layer.lost_shown:
@@ -233,6 +237,8 @@ class ViewerApp:
                     and snap.num_gaussians:
                 self.first_map_at = time.monotonic()
             self.camera_layer.update(snap)
+            self.loop_layer.update(snap)
+        self.loop_layer.notify(self.server.get_clients().values(), snap)
         if prev is None or prev.map_version != snap.map_version or force:   # our renders follow
             for view in list(self.novel_views.values()):                    # every map version
                 view.refresh()

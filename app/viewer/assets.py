@@ -20,6 +20,7 @@ ASSETS_DIR = next((d for d in (_APP / "web_assets", _APP.parent / "web_assets") 
 DEFAULT_COLORS = {
     "estimated": (232, 112, 38), "reference": (40, 170, 90), "keyframe": (60, 110, 230),
     "selected": (240, 200, 20), "current": (220, 40, 60), "lost": (255, 0, 255),
+    "loop": (0, 200, 200),
 }
 
 

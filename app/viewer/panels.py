@@ -14,6 +14,7 @@ import viser.uplot
 
 from ..images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
 from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
+from .loops import loop_count_text, loop_status_lines
 
 PLOTS = (  # history key, title, colour
     ("tracking_loss", "Tracking loss", "#e87026"),
@@ -30,10 +31,10 @@ def _placeholder(h: int = 120, w: int = 320) -> np.ndarray:
 def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
     if snap.state == "browse":
         lines = [f"**Browsing** {snap.message}", f"Gaussians: **{snap.num_gaussians:,}**",
-                 f"Poses: {len(snap.estimated_c2w)} · keyframes: {len(snap.keyframes)}"]
+                 f"Poses: {len(snap.estimated_c2w)} · keyframes: {len(snap.keyframes)}{loop_count_text(snap.loops)}"]
         if snap.ate_cm is not None:
             lines.append(f"ATE: {snap.ate_cm:.2f} cm")
-        return "  \n".join(lines)
+        return "  \n".join(lines + loop_status_lines(snap.loops))
     if snap.state in ("starting", "running") and snap.num_gaussians == 0:   # no map yet (live: mapping lags)
         return "  \n".join(first_frame_lines(snap, first_note))
     spf = f"{snap.seconds_per_frame:.2f} s/frame" if snap.seconds_per_frame is not None else "– s/frame"
@@ -41,7 +42,8 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
     ended = snap.state in ("finished", "stopped", "error")
     lines = [f"Frame **{snap.processed} / {snap.total_frames}** · {STATE_WORDS.get(snap.state, snap.state)}",
              f"{spf} · Gaussians **{snap.num_gaussians:,}**",
-             f"{'ATE' if ended else 'ATE so far'}: {ate} · keyframes: {len(snap.keyframes)}"]
+             f"{'ATE' if ended else 'ATE so far'}: {ate} · keyframes: {len(snap.keyframes)}"
+             f"{loop_count_text(snap.loops)}"] + loop_status_lines(snap.loops)
     if snap.skipped_frames:
         index, reason = snap.skipped_frames[-1]
         lines.append(f"⚠ {len(snap.skipped_frames)} bad frame(s) skipped; last: {reason}")

@@ -126,6 +126,7 @@ class MapLayer:
         self._order: list[str] = []                               # chunk names, keyframe order
         self._map_version = -1
         self._keyframes_followed = -1                             # keyframes of the last snapshot followed
+        self._loops_drawn = 0                                     # loops closed in the map drawn
         self._keyframes_at_consolidation = 0
         self._consolidated_at = time.monotonic()
         self._fingerprints: dict[str, bytes] = {}                  # name -> digest of what was sent
@@ -159,7 +160,8 @@ class MapLayer:
                 return False
             t0 = time.perf_counter()
             payload_of = splat_payload if style == "splats" else point_payload
-            consolidate = force_consolidate or drawn != (self.stride, self.style) or (
+            loops = len(snap.loops or ())            # a loop correction moved old chunks: refresh all
+            consolidate = force_consolidate or drawn != (self.stride, self.style) or loops != self._loops_drawn or (
                 K - self._keyframes_at_consolidation >= self.consolidate_every
                 or time.monotonic() - self._consolidated_at >= self.consolidate_interval_s)
             bucket = keyframe_buckets(snap.gaussians["birth_frame"], kf_frames)
@@ -185,7 +187,7 @@ class MapLayer:
                 for stale in [n for n in self._order if n not in names]:  # keyframes never vanish,
                     self._drop(stale)                                      # but be safe
             self._order = names
-            self._map_version = snap.map_version
+            self._map_version, self._loops_drawn = snap.map_version, loops
             self.stride, self.style = drawn
             if consolidate:
                 self._keyframes_at_consolidation = K
@@ -279,7 +281,7 @@ class CameraLayer:
         self._frustums: dict[int, viser.CameraFrustumHandle] = {}
         self._current = None
         self.lost_shown = False   # the current camera is drawn in the "lost" colour
-        self._traj_len = {"estimated": -1, "reference": -1}
+        self._traj_drawn = {"estimated": b"", "reference": b""}   # the poses drawn (a loop moves old ones)
         self._lock = threading.RLock()
 
     @property
@@ -303,9 +305,12 @@ class CameraLayer:
             fov = intr.fov_y if intr else np.deg2rad(55.0)
             aspect = intr.width / intr.height if intr else 4.0 / 3.0
             for kf in snap.keyframes:
-                if kf.frame_index in self._frustums:
-                    continue
                 wxyz, pos = wxyz_position(kf.c2w)
+                if kf.frame_index in self._frustums:       # moved by a loop correction: follow it
+                    handle = self._frustums[kf.frame_index]
+                    if not (np.allclose(handle.position, pos, atol=1e-6) and np.allclose(handle.wxyz, wxyz, atol=1e-7)):
+                        handle.wxyz, handle.position = wxyz, pos
+                    continue
                 handle = self.server.scene.add_camera_frustum(
                     f"/keyframes/kf_{kf.frame_index:06d}", fov=fov, aspect=aspect, scale=scale,
                     thickness=1.5, thickness_units="screen", color=self._color_of(kf.frame_index),
@@ -329,9 +334,10 @@ class CameraLayer:
                     self._current.wxyz, self._current.position, self._current.color = wxyz, pos, color
 
     def _update_trajectory(self, which: str, c2w: np.ndarray) -> None:
-        if len(c2w) == self._traj_len[which]:
+        drawn = np.ascontiguousarray(c2w, np.float64).tobytes()
+        if drawn == self._traj_drawn[which]:
             return
-        self._traj_len[which] = len(c2w)
+        self._traj_drawn[which] = drawn
         seg = trajectory_segments(c2w)
         if len(seg) == 0:
             return

@@ -11,7 +11,8 @@ Going to a keyframe, for that page only:
 - the map shows as it was at that keyframe: the chunks born after it are hidden by client-scoped
   shadows (a hidden node under the same name shadows the shared node for one client, viser 1.1.1),
 - the keyframe frustums with their images (which would fill the view from a keyframe's pose)
-  are hidden and drawn as faint outlines instead, still clickable; the one at the keyframe is left out,
+  are hidden and drawn as faint outlines instead, still clickable; the one at the keyframe is left out;
+  the loop edges with them, and edges of the loops closed by that keyframe drawn for the page alone,
 - the camera flies to the keyframe's pose, and the panel shows the captured image beside our
   render of the map at that keyframe from that pose (cached per (keyframe, run state), so ten
   visitors on the same keyframe cost one render, and a growing map does not re-render it).
@@ -30,6 +31,7 @@ from splat_core.metrics import psnr
 
 from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from ..snapshot import MapSnapshot
+from .loops import LOOP_COLOR, loop_segments
 from .scene import wxyz_position
 
 FADED_COLOR = (150, 150, 160)
@@ -227,16 +229,34 @@ class KeyframeScrubber:
         for k, frame in enumerate(frames):
             if k != pos:
                 want[f"/scrub/kf_{frame:06d}"] = frame
+        seg = loop_segments(snap.loops, snap.keyframes, upto_frame=frames[pos])   # loops closed by then
+        if len(seg):
+            want["/scrub/loops"] = seg
         scene = page.client.scene
-        for name in [n for n in page.shadows if n not in want]:
+        for name in [n for n in page.shadows if n not in want
+                     or (n == "/scrub/loops" and not np.array_equal(page.shadows[n].points, want[n]))]:
             page.shadows.pop(name).remove()
         for name, what in want.items():
             if name in page.shadows:
+                if name.startswith("/scrub/kf_"):   # a loop correction moved the keyframe: follow it
+                    self._follow_pose(page.shadows[name], snap.keyframes[frames.index(what)].c2w)
                 continue
-            if what == "hidden":
+            if name == "/scrub/loops":
+                page.shadows[name] = scene.add_line_segments(name, what, colors=np.array(self._loop_color(), np.uint8),
+                                                             thickness=2.0, thickness_units="screen")
+            elif what == "hidden":
                 page.shadows[name] = scene.add_frame(name, show_axes=False, visible=False)
             else:
                 page.shadows[name] = self._faded_frustum(scene, name, snap, frames.index(what))
+
+    def _loop_color(self):
+        return (getattr(self.camera_layer, "colors", None) or {}).get("loop", LOOP_COLOR)
+
+    @staticmethod
+    def _follow_pose(handle, c2w) -> None:
+        wxyz, pos = wxyz_position(c2w)
+        if not (np.allclose(handle.position, pos, atol=1e-6) and np.allclose(handle.wxyz, wxyz, atol=1e-7)):
+            handle.wxyz, handle.position = wxyz, pos
 
     def _faded_frustum(self, scene, name: str, snap: MapSnapshot, k: int):
         kf = snap.keyframes[k]
