@@ -6,7 +6,8 @@ WORLD_SCALE units with `scale=1/WORLD_SCALE`, as the live viewer uploads it), th
 direction (-y: OpenCV world axes) and an initial camera behind the world origin looking at the
 middle of the map; `as_html()` serialises that scene into viser's client page and the server is
 stopped. The page inlines the client (0.82 MB) and the scene (32 B per Gaussian, zstd,
-base64), and opens from file:// without any network.
+base64), and opens from file:// without any network. It carries viewer.page_shim's script, as the
+live viewer's page does.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ import numpy as np
 
 from splat_core.io.atomic import write_text_atomic
 
+from .viewer.page_shim import patch_page
 from .viewer.scene import WORLD_SCALE, splat_payload
 
 
@@ -40,7 +42,7 @@ def html_page(arrays: dict) -> str:
             server.initial_camera.position = tuple(np.array([0.0, -0.3, -0.8]) * dist)
             if len(means):
                 server.scene.add_gaussian_splats("/map", *payload, scale=1.0 / WORLD_SCALE)
-            return server.scene.as_html()
+            return patch_page(server.scene.as_html())
         finally:
             server.stop()
 

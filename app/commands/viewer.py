@@ -69,19 +69,19 @@ def port_is_free(host: str, port: int) -> bool:
 
 def start_server(host: str, port: int | None, access=None):
     """A viser server; an explicitly requested port must be free (viser would silently move on).
-    `access` (app.viewer.access.Access): its tokens guard every request and websocket."""
-    import contextlib
-
+    `access` (app.viewer.access.Access): its tokens guard every request and websocket. The page is
+    served with app.viewer.page_shim's script either way."""
     import viser
 
     from app.viewer.access import check_bind, tolerate_malformed_messages
+    from app.viewer.page_shim import serving
 
     check_bind(host)
     tolerate_malformed_messages()
     explicit = port is not None and port != 0
     if explicit and not port_is_free(host, port):
         raise InputError(f"--port {port}: {host}:{port} is already in use; choose another port or pass --port 0")
-    with access.guard() if access is not None else contextlib.nullcontext():
+    with access.guard() if access is not None else serving():
         server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
     if access is not None:
         access.port = server.get_port()

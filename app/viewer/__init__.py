@@ -7,6 +7,7 @@
     panels.py       status, plots and the live images panel; the shared run controls
     control_gui.py  GUI built only on the pages of visitors who may control the run
     access.py       access tokens, view-only pages, a websocket reader that drops malformed messages
+    page_shim.py    a script served with viser 1.1.1's page: splat geometry bounds (no NaN console errors)
     novel_view.py   renders the map from the browser's camera (one render thread)
     export_panel.py, video_panel.py, refine_panel.py, measure.py: the tools
 """

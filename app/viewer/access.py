@@ -18,8 +18,9 @@ Rules (docs/viewer.md "Sharing on a network"):
 How it hooks into viser 1.1.1: viser serves its page and its websocket from one
 `websockets.asyncio.server.serve(..., process_request=viser_http_server)` call, made on viser's
 own thread while `ViserServer.__init__` runs, and exposes no hook for it. `guard()` replaces
-`websockets.asyncio.server.serve` for the duration of that constructor (under a lock) with a
-function that wraps viser's `process_request` in the token check; nothing else changes. The role of a
+`websockets.asyncio.server.serve` for the duration of that constructor (under a lock,
+page_shim.serving) with a function that wraps viser's `process_request` in the token check (and
+page_shim's page script); nothing else changes. The role of a
 connected client is read from its handshake request (`ServerConnection.request`, public websockets
 API) found through viser's `_live_connections`, filled before `on_client_connect` callbacks run.
 
@@ -30,12 +31,10 @@ closing the connection with an exception.
 
 from __future__ import annotations
 
-import contextlib
 import http
 import ipaddress
 import logging
 import secrets
-import threading
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
@@ -44,7 +43,6 @@ log = logging.getLogger(__name__)
 LOOPBACK_NAMES = ("127.0.0.1", "::1", "localhost")
 SHARE_MODES = ("control", "view")
 ROLES = ("control", "view")
-_guard_lock = threading.Lock()
 
 
 def is_loopback_name(host: str) -> bool:
@@ -154,25 +152,11 @@ class Access:
             return response
         return process_request
 
-    @contextlib.contextmanager
     def guard(self):
-        """Around `viser.ViserServer(...)`: its HTTP and websocket server checks tokens."""
-        if not self.required:
-            yield
-            return
-        import websockets.asyncio.server as ws_server
-
-        with _guard_lock:
-            original = ws_server.serve
-
-            def serve(*args, **kwargs):
-                kwargs["process_request"] = self.wrap(kwargs.get("process_request"))
-                return original(*args, **kwargs)
-            ws_server.serve = serve
-            try:
-                yield
-            finally:
-                ws_server.serve = original
+        """Around `viser.ViserServer(...)`: its HTTP and websocket server checks tokens (when
+        required) and serves the page with page_shim's script (page_shim.serving does the hooking)."""
+        from .page_shim import serving
+        return serving(self.wrap) if self.required else serving()
 
 
 def check_bind(host: str) -> None:
