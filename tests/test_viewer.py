@@ -17,7 +17,7 @@ from splat_core.errors import InputError
 from splat_core.io.ply import read_ply
 from splat_core.io.trajectory import read_tum_trajectory
 
-from helpers.viewer import FakePipeline, blob_map, wait_until
+from helpers.viewer import FakePipeline, apply_snapshot, blob_map, wait_until
 from helpers.runs import make_run, run_cli
 
 
@@ -257,10 +257,7 @@ def test_the_camera_layer_follows_the_map_update_policy(server):
     app = build_viewer(server, source)
     try:
         def apply(s):
-            source.snap = s
-            app.wake()
-            wait_until(lambda: app.applied is not None and app.applied.frame_index == s.frame_index, 10,
-                       what=f"snapshot {s.version}")
+            apply_snapshot(app, source, s)
             return np.asarray(app.camera_layer._current.position)
 
         assert np.allclose(apply(snap(2, (0,), 0.1)), [0.1, 0, 0])

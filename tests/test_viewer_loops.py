@@ -15,7 +15,7 @@ from app.worker import SlamWorker
 from splat_core.camera import invert_pose
 
 from helpers.runs import make_run
-from helpers.viewer import FakePipeline, blob_map, wait_until
+from helpers.viewer import FakePipeline, apply_snapshot, blob_map, wait_until
 
 THUMB = np.zeros((4, 4, 3), np.uint8)
 
@@ -81,10 +81,7 @@ def test_frustums_and_edges_follow_a_loop_correction_at_once(server):
     app = build_viewer(server, source, map_updates="off")
     try:
         def apply(s):
-            source.snap = s
-            app.wake()
-            wait_until(lambda: app.applied is not None and app.applied.frame_index == s.frame_index, 10,
-                       what=f"snapshot {s.version}")
+            apply_snapshot(app, source, s)
 
         drifted = {0: c2w_at(0.0), 2: c2w_at(0.2), 4: c2w_at(0.4)}
         apply(snap(1, drifted, (), "paused"))                 # paused: drawn

@@ -125,6 +125,14 @@ def wait_until(predicate, timeout: float = 30.0, interval: float = 0.1, what: st
     raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
 
 
+def apply_snapshot(app, source, snap) -> None:
+    """Hand the viewer `snap` (through a source whose `.snap` it reads) and wait until it is applied."""
+    source.snap = snap
+    app.wake()
+    wait_until(lambda: app.applied is not None and app.applied.frame_index == snap.frame_index, 10,
+               what=f"snapshot {snap.version}")
+
+
 def click(button) -> None:
     """Press a viser GUI button from a test: its on_click callbacks with an event from no client."""
     from viser import GuiEvent
