@@ -176,15 +176,36 @@ def test_off_by_default_and_the_cli_switches_it():
     assert load_run_config("splatam", "tum", cpu, loop_closure="on").loop_closure.enabled
 
 
+def test_keyframes_checked_late_or_not_at_all_stay_linked_in_the_graph():
+    # The live mapper may map several keyframes in one batch and check them after newer ones exist;
+    # a keyframe never checked must still get its odometry edge (else the graph falls apart).
+    from types import SimpleNamespace
+
+    from splat_core.loop import LoopClosure
+
+    kfs = [SimpleNamespace(frame_index=5 * k, w2c=invert_pose(c2w)) for k, c2w in enumerate(_circle(8))]
+    closer = LoopClosure(LoopClosureConfig(enabled=True, max_candidates=0))
+    slam = SimpleNamespace(keyframes=kfs[:4])
+    assert closer.after_keyframe(slam, 10) == []                 # keyframe 2, checked after keyframe 3 was mapped
+    slam.keyframes = kfs
+    assert closer.after_keyframe(slam, 35) == []                 # keyframes 3-6 never checked
+    assert closer.after_keyframe(slam, 999) == []                # not a keyframe: nothing
+    assert [(e.a, e.b) for e in closer.edges] == [(k - 1, k) for k in range(1, 8)]
+    for k, e in enumerate(closer.edges, start=1):
+        assert np.allclose(e.measured, kfs[k - 1].w2c @ invert_pose(kfs[k].w2c))     # c2w_{k-1}^-1 c2w_k
+    restored = LoopClosure(closer.config)
+    restored.load_state(closer.state())
+    assert restored.linked == 7 and len(restored.edges) == 7
+
+
 @pytest.mark.slow
-@pytest.mark.xfail(strict=False, reason="timing-dependent: which keyframes the live mapper checks varies; failed 1 run in ~10 "
-                   "(seen by its author and in a full-suite run on 2026-12-04); passes alone")
 def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
     from splat_core.run import Pipeline
     from splat_core.synthetic import LoopSource
 
-    # max_lag 0: every frame is mapped before the next is tracked, so which keyframes the mapper checks
-    # for loops does not depend on timing (an assertion failed once in ten runs with max_lag 1)
+    # The mapper checks every keyframe of each batch (the tracker runs on while a loop closes, so a
+    # batch may hold several); max_lag 0 keeps the batches short. Poses are exact and every accepted
+    # loop is applied (min_correction 0): what moves them is the loops' own error at 128 x 96.
     overrides = dict(SMALL, checkpoint_every=0, tracking={"use_reference_poses": True}, live={"max_lag": 0},
                      loop_closure=dict(SMALL["loop_closure"], min_correction=0.0, min_correction_deg=0.0))
     pipe = Pipeline(LoopSource(n_frames=50, width=128, height=96, overlap=0.4), load_config("cpu", overrides),
@@ -196,4 +217,8 @@ def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
     assert metrics["loops_closed"] >= 1 and len(pipe.slam.w2cs) == 50
     assert pipe.map_version().loops == tuple(metrics["loops"])
     assert len(seen) <= metrics["loops_closed"]          # the last loops may close after the last frame
-    assert metrics["ate_rmse_cm"] < 2.0    # exact poses stay near exact (1.09 cm measured: a forced loop at 128x96)
+    # forced loops at 128 x 96 move exact poses by a few cm (sequential engine 1.89 cm, live 0.70-2.81
+    # measured); frames the tracker handed over while a loop closed must follow the correction
+    assert metrics["ate_rmse_cm"] < 4.0
+    for kf in pipe.slam.keyframes:
+        assert np.allclose(pipe.slam.w2cs[kf.frame_index], kf.w2c, atol=1e-6), kf.frame_index

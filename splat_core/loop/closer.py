@@ -42,21 +42,21 @@ class LoopClosure:
         self.rejected = 0                           # candidates verification turned down
         self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
         self.quiet_until = -1                       # keyframe position before which nothing is detected
+        self.linked = 0                             # keyframe positions up to this one have their odometry edge
         self._features: dict[int, detect.Features] = {}
         self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
 
     # -------------------------------------------------------------- one keyframe
     def after_keyframe(self, slam, frame_index: int) -> list[dict]:
-        """Called once frame `frame_index` became the newest keyframe and was mapped; returns the
-        loops accepted now (at most one)."""
+        """Called once keyframe `frame_index` was mapped (the sequential engine at once, the live
+        engine's mapper for each keyframe of its batch, in order, possibly after newer ones were
+        mapped); returns the loops accepted now (at most one)."""
         kfs = list(slam.keyframes)
-        j = len(kfs) - 1
-        if j < 0 or kfs[j].frame_index != frame_index:
+        j = next((p for p in range(len(kfs) - 1, -1, -1) if kfs[p].frame_index == frame_index), None)
+        if j is None:
             return []
         c = self.config
-        if j > 0:
-            self.edges.append(pose_graph.odometry_edge(j - 1, j, invert_pose(kfs[j - 1].w2c), invert_pose(kfs[j].w2c),
-                                                       c.odometry_sigma, c.odometry_sigma_rel, c.odometry_sigma_deg))
+        self.link(kfs, j)
         if j < self.quiet_until or c.max_candidates == 0:
             return []
         frames = np.array([kf.frame_index for kf in kfs], np.int64)
@@ -88,6 +88,15 @@ class LoopClosure:
             self.rejected += 1
             self.rejected_by[verdict.reason] = self.rejected_by.get(verdict.reason, 0) + 1
         return []
+
+    def link(self, kfs, j: int) -> None:
+        """Odometry edges up to keyframe position j: every keyframe is linked to the one before it,
+        whichever keyframes loop detection runs on (the graph stays one connected chain)."""
+        c = self.config
+        for p in range(self.linked + 1, j + 1):
+            self.edges.append(pose_graph.odometry_edge(p - 1, p, invert_pose(kfs[p - 1].w2c), invert_pose(kfs[p].w2c),
+                                                       c.odometry_sigma, c.odometry_sigma_rel, c.odometry_sigma_deg))
+        self.linked = max(self.linked, j)
 
     def features(self, k: int, kf) -> detect.Features:
         if k not in self._features:
@@ -158,12 +167,13 @@ class LoopClosure:
     # -------------------------------------------------------------- checkpoints
     def state(self) -> str:
         return json.dumps(dict(edges=[e.to_dict() for e in self.edges], loops=self.loops, rejected=self.rejected,
-                               rejected_by=self.rejected_by, quiet_until=self.quiet_until))
+                               rejected_by=self.rejected_by, quiet_until=self.quiet_until, linked=self.linked))
 
     def load_state(self, state: str) -> None:
         s = json.loads(state)
         self.edges = [pose_graph.Edge.from_dict(e) for e in s["edges"]]
         self.loops, self.rejected, self.quiet_until = list(s["loops"]), int(s["rejected"]), int(s["quiet_until"])
         self.rejected_by = dict(s.get("rejected_by", {}))
+        self.linked = int(s.get("linked", max((e.b for e in self.edges if not e.robust), default=0)))
         self._features.clear()
 

@@ -181,9 +181,10 @@ class LiveEngine:
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
-        closes = [t for t, _, _ in batch if slam.loop_closure is not None and slam.is_keyframe(t)]
-        if closes:
-            loops = self._close_loops(closes[-1])
+        # every keyframe of the batch, oldest first: which keyframes are checked for loops does not
+        # depend on how many frames the tracker handed over meanwhile
+        for t in [t for t, _, _ in batch if slam.loop_closure is not None and slam.is_keyframe(t)]:
+            loops = self._close_loops(t)
             if loops:
                 with self._cond:
                     self.loops.extend(loops)
