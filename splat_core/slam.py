@@ -201,6 +201,14 @@ class SplaTAM:
         self.w2cs.append(w2c)
         return t, w2c, tracked
 
+    def retract(self, t: int) -> None:
+        """Forget the newest frame t's pose and lost mark (the live engine tracks it again, against a
+        newer map)."""
+        if t != len(self.w2cs) - 1:
+            raise ValueError(f"retract: frame {t} is not the newest tracked frame ({len(self.w2cs) - 1})")
+        self.w2cs.pop()
+        self.lost_tracking.lost.pop(t, None)
+
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True) -> MapStats:
         """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe."""
         if self.lost_tracking.reason(t) is not None:

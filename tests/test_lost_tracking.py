@@ -108,14 +108,8 @@ def undisturbed(n: int, at: int, engine: str):
     return np.array(pipe.estimated_c2w()), np.array(pipe.reference_c2w())
 
 
-JUMP_LIVE = pytest.param("jump", "live", id="jump-live", marks=pytest.mark.xfail(strict=False, reason=(
-    "on an Intel Xeon (2026-12-02, evening) the live engine lost frames 13-20 after the jump "
-    "(the sequential engine none) and its ATE was 13 cm against 2.4 allowed; passed on the AMD EPYC "
-    "of earlier runs; relocalisation under the live engine's map lag needs work")))
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("kind, engine", [("jump", "sequential"), JUMP_LIVE,
+@pytest.mark.parametrize("kind, engine", [("jump", "sequential"), ("jump", "live"),
                                           ("turn", "sequential"), ("turn", "live")])
 def test_hard_captures_recover(tmp_path, kind, engine):
     pipe, metrics, errors = hard_run(kind, tmp_path / "run", n=30, at=12, engine=engine)

@@ -101,6 +101,17 @@ class LiveEngine:
         with self._poses:
             version = self.slam.latest_version()
             t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+        lost = self.slam.lost_tracking.reason
+        if lost(t) is not None and any(lost(k) is None for k in range(version.frame_index + 1, t)):
+            # Lost against a map that lacks frames tracked before this one: a jump into what those
+            # frames saw finds no map there yet. Wait until everything handed over is mapped and track
+            # once more (the sequential engine always has it); only a lost frame ever waits so.
+            self.slam.retract(t)
+            waited += self._wait_for_map(t, max_lag=0)
+            start = time.perf_counter()
+            with self._poses:
+                version = self.slam.latest_version()
+                t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
         with self._cond:
             loops, self.loops = self.loops, []
         # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
@@ -122,10 +133,11 @@ class LiveEngine:
                               mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
                               gaussians_added=self.num_added, gaussians_pruned=self.num_pruned))
 
-    def _wait_for_map(self, t: int) -> float:
-        """Block while the map is too far behind frame t (the policy above); returns seconds waited."""
+    def _wait_for_map(self, t: int, max_lag: int | None = None) -> float:
+        """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
+        configured one); returns seconds waited."""
         start = time.perf_counter()
-        need = max(0, t - 1 - self.config.max_lag)
+        need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))
         with self._cond:
             while t > 0 and self._mapped < need and self.error is None and not self._closing_loop:
                 self._cond.wait(0.5)
