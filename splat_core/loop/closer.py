@@ -124,9 +124,13 @@ class LoopClosure:
         c2w_old, c2w_cur = invert_pose(kfs[k].w2c), invert_pose(kfs[j].w2c)
         measured = invert_pose(c2w_old) @ verdict.c2w_current
         sigma_m = float(np.clip(verdict.evidence["rmse_m"], 0.003, 0.02))
-        self.edges.append(pose_graph.Edge(k, j, measured, sigma_m, 0.3, robust=True))
+        # A loop measured from the tracked pose against the old map (no RANSAC pose from the images)
+        # is not independent of tracking: recorded, but neither a constraint nor a correction.
+        independent = verdict.evidence.get("route") == "ransac" or c.apply_map_route
+        if independent:
+            self.edges.append(pose_graph.Edge(k, j, measured, sigma_m, 0.3, robust=True))
         dt, dr = pose_difference(c2w_cur, verdict.c2w_current)
-        applied = dt > c.min_correction or dr > c.min_correction_deg
+        applied = independent and (dt > c.min_correction or dr > c.min_correction_deg)
         moved_m = moved_deg = 0.0
         inconsistent: list = []
         if applied:
