@@ -127,6 +127,6 @@ class LoopClosureConfig:
     odometry_sigma_deg: float = 0.3
     remap_iterations: int = 20            # mapping iterations over the loop's keyframes after a correction
     cooldown_keyframes: int = 2           # keyframes without detection after an accepted loop
-    apply_map_route: bool = False         # also constrain and correct by loops that RANSAC could not measure
-                                          # (aligned from the tracked pose against the old map: not independent
-                                          # of tracking; on 7-Scenes the two it applied made 300 frames worse)
+    map_route: bool = False               # verify candidates RANSAC cannot measure by aligning from the tracked
+                                          # pose against the old map: not independent of tracking (on 7-Scenes
+                                          # the two corrections it applied made the first 300 frames worse)

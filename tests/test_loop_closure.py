@@ -140,7 +140,7 @@ def test_resume_with_a_closed_loop_equals_an_uninterrupted_run(tmp_path):
 
     overrides = dict(SMALL, checkpoint_every=3, tracking={"use_reference_poses": True},
                      loop_closure=dict(SMALL["loop_closure"], min_correction=0.0, min_correction_deg=0.0,
-                                       apply_map_route=True))
+                                       map_route=True))
     config = load_config("cpu", overrides)
     source = lambda: LoopSource(n_frames=50, width=128, height=96, overlap=0.4)  # noqa: E731
     full = Pipeline(source(), config, tmp_path / "full")
@@ -199,32 +199,18 @@ def test_keyframes_checked_late_or_not_at_all_stay_linked_in_the_graph():
     assert restored.linked == 7 and len(restored.edges) == 7
 
 
-def test_only_loops_measured_from_the_images_correct_poses():
-    # A "map route" loop (no RANSAC pose: aligned from the tracked pose against the old map) is not
-    # independent of tracking: recorded, but neither a graph edge nor a correction (apply_map_route).
+def test_the_map_route_is_off_unless_asked():
+    # Where RANSAC finds too little, verification may start from the tracked pose ("map" route) only
+    # when loop_closure.map_route is on and the old part of the map covers enough of the view.
     from types import SimpleNamespace
 
     from splat_core.loop import LoopClosure
-    from splat_core.loop.verify import Verdict
 
-    poses = _circle(4)
-    kfs = [SimpleNamespace(frame_index=50 * k, w2c=invert_pose(c2w)) for k, c2w in enumerate(poses)]
-    moved = poses[3].copy()
-    moved[:3, 3] += [0.2, 0.0, 0.0]                 # the loop says: 20 cm from where tracking put it
-
-    def close(route, **config):
-        closer = LoopClosure(LoopClosureConfig(enabled=True, **config))
-        verdict = Verdict(True, "accepted", dict(route=route, rmse_m=0.005, inliers=30 if route == "ransac" else 1),
-                          moved)
-        record = closer._close(None, kfs, 3, 0, verdict, 0.5, 40, 0.0)
-        return record, [e for e in closer.edges if e.robust]
-
-    record, loops = close("map")
-    assert record["disagreement_cm"] == pytest.approx(20.0) and not record["applied"] and loops == []
-    record, loops = close("ransac", min_correction=1.0, min_correction_deg=90.0)      # an edge; too small to apply
-    assert not record["applied"] and [(e.a, e.b) for e in loops] == [(0, 3)]
-    record, loops = close("map", apply_map_route=True, min_correction=1.0, min_correction_deg=90.0)
-    assert [(e.a, e.b) for e in loops] == [(0, 3)]
+    current = SimpleNamespace(w2c=invert_pose(_circle(4)[1]))
+    assert LoopClosure(LoopClosureConfig(enabled=True)).map_route_start(current, 0.9) is None
+    on = LoopClosure(LoopClosureConfig(enabled=True, map_route=True, min_visible=0.15))
+    assert np.allclose(on.map_route_start(current, 0.2), _circle(4)[1])
+    assert on.map_route_start(current, 0.1) is None
 
 
 @pytest.mark.slow
@@ -237,7 +223,7 @@ def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
     # loop is applied (min_correction 0): what moves them is the loops' own error at 128 x 96.
     overrides = dict(SMALL, checkpoint_every=0, tracking={"use_reference_poses": True}, live={"max_lag": 0},
                      loop_closure=dict(SMALL["loop_closure"], min_correction=0.0, min_correction_deg=0.0,
-                                       apply_map_route=True))
+                                       map_route=True))
     pipe = Pipeline(LoopSource(n_frames=50, width=128, height=96, overlap=0.4), load_config("cpu", overrides),
                     engine="live")
     seen = []

@@ -115,22 +115,26 @@ class LoopClosure:
                      depth_noise=tc.align.depth_noise,
                      live_stride=sparse_step(tc.align.stride, slam.intrinsics, tc.align.min_points))
         c2w_old = invert_pose(old_kf.w2c)
-        estimate = invert_pose(kfs[j].w2c) if visible_k >= c.min_visible else None
+        estimate = self.map_route_start(kfs[j], visible_k)
         return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
                       old_map, slam.intrinsics, c, rng, align, estimate)
+
+    def map_route_start(self, current, visible_k: float) -> np.ndarray | None:
+        """Where verification starts when RANSAC finds too little: the tracked pose, if the map route
+        is on and the old keyframe's Gaussians cover enough of the view; else None (no loop). The map
+        route measures from the tracked pose against part of the map that tracking used, so it is
+        off by default."""
+        c = self.config
+        return invert_pose(current.w2c) if c.map_route and visible_k >= c.min_visible else None
 
     def _close(self, slam, kfs, j, k, verdict, visible, orb, start) -> dict:
         c = self.config
         c2w_old, c2w_cur = invert_pose(kfs[k].w2c), invert_pose(kfs[j].w2c)
         measured = invert_pose(c2w_old) @ verdict.c2w_current
         sigma_m = float(np.clip(verdict.evidence["rmse_m"], 0.003, 0.02))
-        # A loop measured from the tracked pose against the old map (no RANSAC pose from the images)
-        # is not independent of tracking: recorded, but neither a constraint nor a correction.
-        independent = verdict.evidence.get("route") == "ransac" or c.apply_map_route
-        if independent:
-            self.edges.append(pose_graph.Edge(k, j, measured, sigma_m, 0.3, robust=True))
+        self.edges.append(pose_graph.Edge(k, j, measured, sigma_m, 0.3, robust=True))
         dt, dr = pose_difference(c2w_cur, verdict.c2w_current)
-        applied = independent and (dt > c.min_correction or dr > c.min_correction_deg)
+        applied = dt > c.min_correction or dr > c.min_correction_deg
         moved_m = moved_deg = 0.0
         inconsistent: list = []
         if applied:
