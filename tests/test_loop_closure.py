@@ -164,7 +164,7 @@ def test_resume_with_a_closed_loop_equals_an_uninterrupted_run(tmp_path):
 
 
 def test_off_by_default_and_the_cli_switches_it():
-    # Off in every preset: on 7-Scenes it regressed the first 300 frames (docs/loop-closure.md).
+    # Off in every preset: no measured gain on real data yet (docs/loop-closure.md, "What it does on real data").
     import torch as _torch
     from app.run_setup import load_run_config
 
