@@ -112,7 +112,9 @@ def run_dense_slam(o3d, colors, depths, intr, voxel_size, depth_max, device_name
     return np.stack(poses), elapsed / len(depths), failures
 
 
-def run_rgbd_odometry(o3d, colors, depths, intr, depth_max):
+def rgbd_odometry(o3d, colors, depths, intr, depth_max):
+    """(rgbd(i): frame i as an Open3D RGBDImage, odometry(source, target): (ok, T) with T mapping the
+    source camera's points into the target's), Open3D's RGB-D odometry with the hybrid term."""
     pinhole = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
     option = o3d.pipelines.odometry.OdometryOption()
     option.depth_max = depth_max
@@ -123,15 +125,21 @@ def run_rgbd_odometry(o3d, colors, depths, intr, depth_max):
             o3d.geometry.Image(colors[i]), o3d.geometry.Image(depths[i]),
             depth_scale=DEPTH_SCALE, depth_trunc=depth_max, convert_rgb_to_intensity=True)
 
+    def odometry(source, target):
+        ok, T, _ = o3d.pipelines.odometry.compute_rgbd_odometry(source, target, pinhole, np.eye(4), jacobian, option)
+        return ok, np.asarray(T)
+    return rgbd, odometry
+
+
+def run_rgbd_odometry(o3d, colors, depths, intr, depth_max):
+    rgbd, odometry = rgbd_odometry(o3d, colors, depths, intr, depth_max)
     c2w = np.eye(4)
     poses, failures = [c2w.copy()], 0
     t0 = time.perf_counter()
     previous = rgbd(0)
     for i in range(1, len(depths)):
         current = rgbd(i)
-        # The returned transform maps the source (current) camera's points into the target's.
-        ok, cur_to_prev, _ = o3d.pipelines.odometry.compute_rgbd_odometry(
-            current, previous, pinhole, np.eye(4), jacobian, option)
+        ok, cur_to_prev = odometry(current, previous)
         if ok:
             c2w = c2w @ cur_to_prev
         else:

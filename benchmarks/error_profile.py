@@ -14,7 +14,8 @@ motion from each printed frame f to f + --step (keyframes are every 5 frames; wi
 A:B:5 the steps are consecutive), and `mean_step_error_mm` its mean over the printed frames.
 
 --sensor-steps adds a map-independent odometry for comparison ("sensor"): each step's second frame
-aligned (the tracker's direct alignment, cpu preset settings) against Gaussians made from the first
+aligned (the tracker's direct alignment with loop verification's settings, from the cpu preset as
+the pipeline adapts it to the capture) against Gaussians made from the first
 frame's own colour and depth (one per pixel, opaque) at the run's pose of that frame, starting from
 the run's step; and, as its counterpart, Open3D's RGB-D odometry (hybrid term) of the same frame
 pairs at full resolution ("open3d_pairs"). A pose graph needs odometry edges that the map does not
@@ -65,15 +66,11 @@ def sensor_steps(path: Path, est: np.ndarray, frames: range, step: int) -> dict:
     from splat_core.direct_align import align_to_map
     from splat_core.gaussians import GaussianMap
     from splat_core.io import open_capture
+    from splat_core.loop.closer import verification_align
     from splat_core.run.pipeline import Pipeline
-    from splat_core.tracking import sparse_step
 
-    config = load_config("cpu")
-    pipe = Pipeline(open_capture(path), config, None, device="cpu")
-    intr, a = pipe.intrinsics, config.tracking.align
-    kw = dict(levels=a.levels, iterations=max(10, a.iterations), passes=2, color_weight=a.color_weight,
-              silhouette=config.tracking.silhouette_threshold, near=pipe.slam.renderer.near, depth_noise=a.depth_noise,
-              live_stride=sparse_step(a.stride, intr, a.min_points))
+    pipe = Pipeline(open_capture(path), load_config("cpu"), None, device="cpu")
+    intr, kw = pipe.intrinsics, verification_align(pipe.slam)
     out = {}
     for f in frames:
         if f + step >= len(est):
@@ -94,23 +91,9 @@ def open3d_pair_steps(path: Path, frames: range, step: int) -> dict:
 
     o3d = b.import_open3d()
     colors, depths, intr, _, _ = b.load_frames(path, frames.stop + step)
-    pinhole = o3d.camera.PinholeCameraIntrinsic(intr.width, intr.height, intr.fx, intr.fy, intr.cx, intr.cy)
-    option = o3d.pipelines.odometry.OdometryOption()
-    option.depth_max = 3.0
-    jacobian = o3d.pipelines.odometry.RGBDOdometryJacobianFromHybridTerm()
-
-    def rgbd(i):
-        return o3d.geometry.RGBDImage.create_from_color_and_depth(
-            o3d.geometry.Image(colors[i]), o3d.geometry.Image(depths[i]), depth_scale=b.DEPTH_SCALE,
-            depth_trunc=3.0, convert_rgb_to_intensity=True)
-
-    out = {}
-    for f in frames:
-        if f + step < len(depths):      # the transform maps the second camera's points into the first's
-            _, T, _ = o3d.pipelines.odometry.compute_rgbd_odometry(rgbd(f + step), rgbd(f), pinhole, np.eye(4),
-                                                                   jacobian, option)
-            out[f] = np.asarray(T)
-    return out
+    rgbd, odometry = b.rgbd_odometry(o3d, colors, depths, intr, 3.0)
+    # the second camera's points into the first's: the first's c2w^-1 times the second's
+    return {f: odometry(rgbd(f + step), rgbd(f))[1] for f in frames if f + step < len(depths)}
 
 
 def open3d_poses(path: Path, voxel: float) -> np.ndarray:

@@ -206,6 +206,15 @@ def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:
     return max(1, min(step, int(np.sqrt(intr.width * intr.height / max(min_count, 1)))))
 
 
+def align_options(config: TrackingConfig, intr: Intrinsics, near: float, **override) -> dict:
+    """Keyword arguments of direct_align.align_to_map from the tracking settings (`override` wins)."""
+    a = config.align
+    options = dict(levels=a.levels, iterations=a.iterations, passes=a.passes, color_weight=a.color_weight,
+                   silhouette=config.silhouette_threshold, near=near, depth_noise=a.depth_noise,
+                   live_stride=sparse_step(a.stride, intr, a.min_points))
+    return {**options, **override}
+
+
 class Tracker:
     """align -> accept -> polish for one frame at a time (see the module docstring)."""
 
@@ -253,9 +262,7 @@ class Tracker:
     def align(self, g: Gaussians, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray):
         """The Gauss-Newton alignment (tracking.align) from w2c, by the configured backend."""
         a = self.config.align
-        options = dict(levels=a.levels, iterations=a.iterations, passes=a.passes, color_weight=a.color_weight,
-                       silhouette=self.config.silhouette_threshold, near=self.renderer.near,
-                       depth_noise=a.depth_noise, live_stride=sparse_step(a.stride, self.intrinsics, a.min_points))
+        options = align_options(self.config, self.intrinsics, self.renderer.near)
         if align_backend(a.backend, self.device) == "torch":
             from .direct_align_torch import align_to_map_torch
             return align_to_map_torch(g, color, depth, self.intrinsics, w2c, **options)

@@ -29,9 +29,16 @@ import torch
 from ..camera import invert_pose
 from ..config import LoopClosureConfig
 from ..gaussians import Gaussians
-from ..tracking import sparse_step
+from ..tracking import align_options
 from . import anchors, detect, pose_graph
 from .verify import pose_difference, verify
+
+
+def verification_align(slam) -> dict:
+    """The tracker's alignment settings with a longer reach (at least 10 iterations per level, two
+    renders): verification aligns from RANSAC's pose, farther off than a tracking prediction."""
+    tc = slam.config.tracking
+    return align_options(tc, slam.intrinsics, slam.renderer.near, iterations=max(10, tc.align.iterations), passes=2)
 
 
 class LoopClosure:
@@ -42,7 +49,6 @@ class LoopClosure:
         self.rejected = 0                           # candidates verification turned down
         self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
         self.quiet_until = -1                       # keyframe position before which nothing is detected
-        self.linked = 0                             # keyframe positions up to this one have their odometry edge
         self._features: dict[int, detect.Features] = {}
         self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
 
@@ -96,7 +102,11 @@ class LoopClosure:
         for p in range(self.linked + 1, j + 1):
             self.edges.append(pose_graph.odometry_edge(p - 1, p, invert_pose(kfs[p - 1].w2c), invert_pose(kfs[p].w2c),
                                                        c.odometry_sigma, c.odometry_sigma_rel, c.odometry_sigma_deg))
-        self.linked = max(self.linked, j)
+
+    @property
+    def linked(self) -> int:
+        """The newest keyframe position that has its odometry edge (0: none yet)."""
+        return max((e.b for e in self.edges if not e.robust), default=0)
 
     def features(self, k: int, kf) -> detect.Features:
         if k not in self._features:
@@ -104,20 +114,16 @@ class LoopClosure:
         return self._features[k]
 
     def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng, visible_k):
-        c, tc = self.config, slam.config.tracking
+        c = self.config
         old_kf = kfs[k]
         keep = slam.map.birth_frame <= frame_index - c.min_gap_frames
         g = slam.map.tensors(detach=True)
         idx = torch.nonzero(keep.to(g.means.device)).flatten()
         old_map = Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        align = dict(levels=tc.align.levels, iterations=max(10, tc.align.iterations), passes=2,
-                     color_weight=tc.align.color_weight, silhouette=tc.silhouette_threshold, near=slam.renderer.near,
-                     depth_noise=tc.align.depth_noise,
-                     live_stride=sparse_step(tc.align.stride, slam.intrinsics, tc.align.min_points))
         c2w_old = invert_pose(old_kf.w2c)
         estimate = self.map_route_start(kfs[j], visible_k)
         return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
-                      old_map, slam.intrinsics, c, rng, align, estimate)
+                      old_map, slam.intrinsics, c, rng, verification_align(slam), estimate)
 
     def map_route_start(self, current, visible_k: float) -> np.ndarray | None:
         """Where verification starts when RANSAC finds too little: the tracked pose, if the map route
@@ -175,13 +181,12 @@ class LoopClosure:
     # -------------------------------------------------------------- checkpoints
     def state(self) -> str:
         return json.dumps(dict(edges=[e.to_dict() for e in self.edges], loops=self.loops, rejected=self.rejected,
-                               rejected_by=self.rejected_by, quiet_until=self.quiet_until, linked=self.linked))
+                               rejected_by=self.rejected_by, quiet_until=self.quiet_until))
 
     def load_state(self, state: str) -> None:
         s = json.loads(state)
         self.edges = [pose_graph.Edge.from_dict(e) for e in s["edges"]]
         self.loops, self.rejected, self.quiet_until = list(s["loops"]), int(s["rejected"]), int(s["quiet_until"])
         self.rejected_by = dict(s.get("rejected_by", {}))
-        self.linked = int(s.get("linked", max((e.b for e in self.edges if not e.robust), default=0)))
         self._features.clear()
 

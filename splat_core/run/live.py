@@ -98,9 +98,7 @@ class LiveEngine:
         t = self.slam.frames_tracked
         waited = self._wait_for_map(t)
         start = time.perf_counter()
-        with self._poses:
-            version = self.slam.latest_version()
-            t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+        version, t, w2c, tracked = self._track(frame, w2c_given)
         lost = self.slam.lost_tracking.reason
         if lost(t) is not None and any(lost(k) is None for k in range(version.frame_index + 1, t)):
             # Lost against a map that lacks frames tracked before this one: a jump into what those
@@ -109,9 +107,7 @@ class LiveEngine:
             self.slam.retract(t)
             waited += self._wait_for_map(t, max_lag=0)
             start = time.perf_counter()
-            with self._poses:
-                version = self.slam.latest_version()
-                t, w2c, tracked = self.slam.track(frame, version.gaussians, w2c_given)
+            version, t, w2c, tracked = self._track(frame, w2c_given)
         with self._cond:
             loops, self.loops = self.loops, []
         # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
@@ -123,6 +119,13 @@ class LiveEngine:
             self._handed = t
             self._cond.notify_all()
         return result
+
+    def _track(self, frame: Frame, w2c_given):
+        """(the map version, frame index, w2c, tracker result) of the next frame tracked against the
+        newest published map, under the pose lock."""
+        with self._poses:
+            version = self.slam.latest_version()
+            return (version, *self.slam.track(frame, version.gaussians, w2c_given))
 
     def map_version(self) -> MapVersion:
         """The newest version the mapper published (safe to read from any thread)."""
