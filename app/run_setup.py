@@ -68,7 +68,7 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
                    help="sequential: track, then map, frame by frame (deterministic); live: tracking runs ahead "
                    f"while a mapper thread maps (faster, not bitwise reproducible); default {engine_default}")
     p.add_argument("--loop-closure", default=None, choices=["on", "off"],
-                   help="close loops online (docs/loop-closure.md; default: the preset's, off in every shipped preset)")
+                   help="close loops online (docs/loop-closure.md; default: the preset's: on in cpu and gpu, off in the paper presets)")
 
 
 def default_config_name(device) -> str:

@@ -20,7 +20,8 @@ again what the map holds.
 
 time: the corridor (splat_core/synthetic/corridor.py), full SLAM with the given preset, run folder and
 checkpoints as `splatam run` writes them; the median s/frame (records' wall_seconds) of frames
-[N/10, N/5) against [0.9 N, N) (100-200 and 900-1000 for N = 1000) and their ratio.
+[N/10, N/5) against [0.9 N, N) (100-200 and 900-1000 for N = 1000) and their ratio, also over
+keyframes alone (`keyframe_s`: loop detection runs after each keyframe).
 
 Each run is a child process of this script (so RSS is per run); `--code DIR` puts another
 checkout first on its PYTHONPATH, to measure the code before a change in the same session.
@@ -136,7 +137,9 @@ def child_time(args) -> dict:
 
     def window(lo, hi):
         part = records[lo:hi]
+        keyframes = [r["wall_seconds"] for r in part if r.get("is_keyframe")] or [float("nan")]
         return dict(frames=[lo, hi], s_per_frame=round(statistics.median(r["wall_seconds"] for r in part), 3),
+                    keyframe_s=round(statistics.median(keyframes), 3),
                     tracking_s=round(statistics.median(r["tracking_seconds"] for r in part), 3),
                     mapping_s=round(statistics.median(r["mapping_seconds"] for r in part), 3),
                     gaussians=part[-1]["num_gaussians"])
@@ -145,6 +148,8 @@ def child_time(args) -> dict:
                 poses="given" if args.given_poses else "tracked",
                 code=args.code or str(ROOT), early=early, late=late,
                 ratio_late_to_early=round(late["s_per_frame"] / early["s_per_frame"], 3),
+                keyframe_ratio_late_to_early=round(late["keyframe_s"] / early["keyframe_s"], 3),
+                loop_closure=cfg.loop_closure.enabled,
                 ate_rmse_cm=metrics["ate_rmse_cm"], machine=machine())
 
 

@@ -11,8 +11,10 @@ ate_rmse_split_cm where the reference has a flagged step, the largest error afte
 (ate_max_split_cm), and the ATE of each stretch of --segment frames aligned on its own
 (segment_ate_cm: where a run's error grows). --synthetic-loop N: splat_core.synthetic.LoopSource
 of N frames at 160x120 with DriftingOdometry (1 mm and 0.1 degree per frame), with and without loop
-closure: ATE and the map's depth error against the noise-free depth at the estimated poses (a
-doubled surface shows there). --corridor N: the synthetic corridor walk with the same drift; any
+closure, and at the exact poses: ATE and the map's depth error against the noise-free depth at the
+estimated poses (a doubled surface shows there; the exact-pose row is the error of a map without one). --detect-cost K:
+one keyframe's loop detection time at K/8 ... K keyframes before it, bounded against matching every
+old keyframe (what the code did before the bound), side by side. --corridor N: the synthetic corridor walk with the same drift; any
 loop closed there is false.
 """
 
@@ -94,20 +96,83 @@ def synthetic_rows(args) -> list[dict]:
 
     rows = []
     config = load_config(args.preset, {"resolution": [160, 120]})
-    jobs = []
+    jobs = []       # (name, source, loop closure, drift per frame (m, degrees))
     if args.synthetic_loop:
-        jobs += [("synthetic_loop", LoopSource(n_frames=args.synthetic_loop, width=160, height=120), lc)
-                 for lc in (True, False)]
+        loop = LoopSource(n_frames=args.synthetic_loop, width=160, height=120)
+        jobs += [("synthetic_loop", loop, True, (0.001, 0.1)), ("synthetic_loop", loop, False, (0.001, 0.1)),
+                 ("synthetic_loop", loop, False, (0.0, 0.0))]       # exact poses: the map's own depth error
     if args.corridor:
-        jobs += [("synthetic_corridor", CorridorSource(n_frames=args.corridor, width=160, height=120, speed=2.0), True)]
-    for name, source, lc in jobs:
+        jobs += [("synthetic_corridor", CorridorSource(n_frames=args.corridor, width=160, height=120, speed=2.0), True,
+                  (0.001, 0.1))]
+    for name, source, lc, (bias_m, bias_deg) in jobs:
         gap = min(config.loop_closure.min_gap_frames, len(source) // 3)
         cfg = load_config(args.preset, {"resolution": [160, 120], "loop_closure": {"min_gap_frames": gap}})
-        r = run_drifting(source, cfg, lc, 0.001, 0.1)
+        r = run_drifting(source, cfg, lc, bias_m, bias_deg)
         r.pop("slam")
+        drift = f"{1000 * bias_m:g} mm, {bias_deg:g} deg" if bias_m or bias_deg else "none (exact poses)"
         row = {"sequence": name, "preset": args.preset, "loop_closure": "on" if lc else "off", "min_gap_frames": gap,
-               "drift_per_frame": "1 mm, 0.1 deg", **r, "machine": machine()}
+               "drift_per_frame": drift, **r, "machine": machine()}
         row["loops_closed"] = len(row.pop("loops"))
+        rows.append(row)
+        if not args.json:
+            print(json.dumps(row), flush=True)
+    return rows
+
+
+def detect_cost_rows(args) -> list[dict]:
+    """Seconds of one keyframe's loop detection (LoopClosure.after_keyframe without verification)
+    against the number of keyframes before it: bounded ORB matching with its features cached
+    ("bounded") and with none cached (every partner's ORB recomputed: "bounded, cold"), against
+    every old keyframe matched with every feature cached (the code before 2026-12-05's bound);
+    side by side in one process, medians of 5."""
+    import statistics
+    import time
+    from dataclasses import replace
+    from types import SimpleNamespace
+
+    import torch
+
+    from splat_core.camera import invert_pose
+    from splat_core.config import load_config
+    from splat_core.loop import LoopClosure
+    from splat_core.synthetic import CorridorSource
+
+    if not args.detect_cost:
+        return []
+    cfg = load_config(args.preset)
+    w, h = cfg.resolution
+    every = 5
+    source = CorridorSource(n_frames=every * args.detect_cost, width=w, height=h, speed=1000 / (every * args.detect_cost))
+    kfs = []
+    for k in range(args.detect_cost):
+        f = source[every * k]
+        color8 = (np.clip(f.color, 0, 1) * 255).astype(np.uint8)
+        kfs.append(SimpleNamespace(frame_index=every * k, w2c=invert_pose(source.reference_c2w()[every * k]),
+                                   depth=f.depth, color=f.color, images8=lambda c=color8: (c, None)))
+    only_detection = dict(min_visible=2.0, min_orb_matches=10**9)      # no candidate: detection alone
+    settings = {"bounded": replace(cfg.loop_closure, enabled=True, **only_detection),
+                "every old keyframe": replace(cfg.loop_closure, enabled=True, orb_by_map=10**9,
+                                              feature_cache=10**9, **only_detection)}
+    rows = []
+    for n in sorted({max(1, args.detect_cost // 8), args.detect_cost // 4, args.detect_cost // 2, args.detect_cost}):
+        slam = SimpleNamespace(keyframes=kfs[:n], intrinsics=source.intrinsics,
+                               map=SimpleNamespace(means=torch.zeros(0, 3), birth_frame=torch.zeros(0, dtype=torch.int64)))
+        closers = {name: LoopClosure(c) for name, c in settings.items()}
+        closers["bounded, cold"] = LoopClosure(settings["bounded"])
+        for closer in closers.values():             # features of the old keyframes computed once beforehand
+            closer.after_keyframe(slam, kfs[n - 1].frame_index)
+        times = {name: [] for name in closers}
+        for _ in range(5):
+            for name, closer in closers.items():
+                closer.edges.clear()
+                if name.endswith("cold"):
+                    closer._features.clear()
+                start = time.perf_counter()
+                closer.after_keyframe(slam, kfs[n - 1].frame_index)
+                times[name].append(time.perf_counter() - start)
+        row = {"sequence": "detection cost", "keyframes": n, "size": f"{w}x{h}",
+               **{f"{name} s": round(statistics.median(t), 4) for name, t in times.items()},
+               "cached features (bounded)": len(closers["bounded"]._features), "machine": machine()}
         rows.append(row)
         if not args.json:
             print(json.dumps(row), flush=True)
@@ -143,11 +208,13 @@ def main() -> None:
     p.add_argument("--open3d-voxels", default="0.01,0.0058,0.02")
     p.add_argument("--synthetic-loop", type=int, default=0, help="frames of the synthetic loop (0: skip)")
     p.add_argument("--corridor", type=int, default=0, help="frames of the corridor walk (0: skip)")
+    p.add_argument("--detect-cost", type=int, default=0,
+                   help="keyframes (corridor, every 5th frame) for the detection-cost rows (0: skip)")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
     work = Path(args.work).resolve() if args.work else Path(tempfile.mkdtemp(prefix="splatam_loops_"))
     work.mkdir(parents=True, exist_ok=True)
-    rows = real_rows(args, work) + open3d_rows(args) + synthetic_rows(args)
+    rows = real_rows(args, work) + open3d_rows(args) + synthetic_rows(args) + detect_cost_rows(args)
     if args.json:
         print(json.dumps(rows, indent=1))
 

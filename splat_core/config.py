@@ -82,8 +82,10 @@ class Config:
              and min(self.lost_tracking.recent_keyframes, self.lost_tracking.spread_keyframes) >= 0,
              "lost_tracking: loss_history and min_history must be >= 1, recent/spread_keyframes >= 0"),
             (self.loop_closure.min_gap_frames >= 1 and self.loop_closure.min_inliers >= 3
-             and self.loop_closure.max_candidates >= 0 and self.loop_closure.remap_iterations >= 0,
-             "loop_closure: min_gap_frames >= 1, min_inliers >= 3, max_candidates and remap_iterations >= 0"),
+             and min(self.loop_closure.max_candidates, self.loop_closure.remap_iterations, self.loop_closure.orb_by_map,
+                     self.loop_closure.orb_sample) >= 0 and self.loop_closure.feature_cache >= 1,
+             "loop_closure: min_gap_frames >= 1, min_inliers >= 3, feature_cache >= 1, max_candidates, "
+             "remap_iterations, orb_by_map and orb_sample >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),

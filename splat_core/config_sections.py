@@ -112,6 +112,10 @@ class LoopClosureConfig:
     min_visible: float = 0.15             # candidate: this fraction of the current depth is explained by its old Gaussians ...
     min_orb_matches: int = 25             # ... or ORB matches (ratio test) with it reach this many
     max_candidates: int = 3               # verified per keyframe (best first)
+    orb_by_map: int = 8                   # ORB-matched per keyframe: the old keyframes the map names most ...
+    orb_sample: int = 8                   # ... and this many others spread over the run (random offset):
+                                          # per-keyframe cost stays bounded however long the run
+    feature_cache: int = 32               # keyframes whose ORB features stay in memory (recomputed otherwise)
     min_inliers: int = 12                 # 3D-3D RANSAC inliers (ORB matches with depth) to accept
     min_inlier_ratio: float = 0.25
     inlier_distance: float = 0.04         # metres, RANSAC inlier threshold

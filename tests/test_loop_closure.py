@@ -100,6 +100,48 @@ def test_candidates_are_old_and_seen_again():
     assert owner.tolist() == [0, 0, 1, 1, 6]
 
 
+
+def test_orb_partners_are_the_map_named_keyframes_plus_an_even_sample():
+    old = np.arange(100)
+    visible = np.zeros(120)
+    visible[[7, 50, 93]] = [0.3, 0.9, 0.1]
+    rng = np.random.default_rng(0)
+    picks = detect.orb_partners(old, visible, by_map=3, sample=10, rng=rng)
+    assert {7, 50, 93} <= set(picks.tolist()) and len(picks) == 13 and len(set(picks.tolist())) == 13
+    rest = np.sort(np.setdiff1d(picks, [7, 50, 93]))
+    assert np.all(np.diff(rest) >= 8) and rest[0] < 12 and rest[-1] > 86     # spread over the whole run
+    assert detect.orb_partners(old[:12], visible, 3, 10, rng).tolist() == list(range(12))   # few: all
+    seen = set()
+    for _ in range(30):                                  # the random offset reaches every old keyframe in time
+        seen |= set(detect.orb_partners(old, visible, 3, 10, rng).tolist())
+    assert len(seen) > 90
+
+
+def test_orb_matching_and_its_cache_stay_bounded_however_many_keyframes(monkeypatch):
+    # Per keyframe, ORB matching runs against orb_by_map + orb_sample old keyframes, and at most
+    # feature_cache keyframes' features stay in memory, whatever the length of the run.
+    from types import SimpleNamespace
+
+    from splat_core.camera import Intrinsics
+    from splat_core.loop import LoopClosure
+
+    matched, computed = [], []
+    monkeypatch.setattr(detect, "orb_features", lambda img: computed.append(img[0, 0, 0]) or detect.Features(
+        np.zeros((0, 2)), np.zeros((0, 32), np.uint8)))
+    monkeypatch.setattr(detect, "match", lambda a, b, ratio=detect.RATIO: matched.append(1) or np.zeros((0, 2), int))
+    image = np.zeros((4, 4, 3), np.uint8)
+    kfs = [SimpleNamespace(frame_index=5 * k, w2c=np.eye(4), depth=np.ones((4, 4), np.float32),
+                           color=image, images8=lambda k=k: (image + k % 250, None)) for k in range(400)]
+    slam = SimpleNamespace(keyframes=kfs, intrinsics=Intrinsics(4, 4, 2, 2, 4, 4),
+                           map=SimpleNamespace(means=torch.zeros(0, 3), birth_frame=torch.zeros(0)))
+    closer = LoopClosure(LoopClosureConfig(enabled=True, orb_by_map=4, orb_sample=6, feature_cache=16))
+    for k in (100, 250, 399):
+        matched.clear()
+        assert closer.after_keyframe(slam, kfs[k].frame_index) == []
+        assert len(matched) == 10 and len(closer._features) <= 16
+    assert len(computed) <= 33                          # the current keyframe and its partners only
+
+
 # ---------------------------------------------------------------------------------- whole runs
 SMALL = {"resolution": [128, 96], "checkpoint_every": 10, "eval_every": 100,
          "mapping": {"iterations": 4, "first_frame_iterations": 20, "window_size": 4},
@@ -163,17 +205,18 @@ def test_resume_with_a_closed_loop_equals_an_uninterrupted_run(tmp_path):
         assert (tmp_path / "full" / name).read_bytes() == (tmp_path / "resumed" / name).read_bytes(), name
 
 
-def test_off_by_default_and_the_cli_switches_it():
-    # Off in every preset: no measured gain on real data yet (docs/loop-closure.md, "What it does on real data").
+def test_on_in_our_presets_off_in_the_papers_and_the_cli_switches_it():
+    # On in the cpu and gpu presets (and cpu_dense, which follows cpu); the paper presets stay SplaTAM.
     import torch as _torch
     from app.run_setup import load_run_config
 
-    for name in ("cpu", "cpu_dense", "gpu", "splatam", "splatam_s", "splatam_tum", "splatam_scannet",
-                 "splatam_iphone", "splatam_scannetpp"):
+    for name in ("cpu", "cpu_dense", "gpu"):
+        assert load_config(name).loop_closure.enabled, name
+    for name in ("splatam", "splatam_s", "splatam_tum", "splatam_scannet", "splatam_iphone", "splatam_scannetpp"):
         assert not load_config(name).loop_closure.enabled, name
     cpu = _torch.device("cpu")
-    assert load_run_config("cpu", "tum", cpu, loop_closure="on").loop_closure.enabled
     assert not load_run_config("cpu", "tum", cpu, loop_closure="off").loop_closure.enabled
+    assert load_run_config("cpu", "tum", cpu).loop_closure.enabled
     assert load_run_config("splatam", "tum", cpu, loop_closure="on").loop_closure.enabled
 
 

@@ -2,7 +2,8 @@
 thread of the live engine):
 
     graph.add(odometry edge: previous keyframe -> this one)
-    old    = detect(this keyframe)                  old keyframes it sees again / looks like (detect.py)
+    old    = detect(this keyframe)                  old keyframes it sees again / looks like (detect.py;
+                                                    ORB against a bounded set, features in an LRU cache)
     loop   = verify(this keyframe, old)             ORB + depth RANSAC, then the tracker's alignment
                                                     against the old map (verify.py); strict
     graph.add(loop edge)
@@ -22,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import json
 import time
+from collections import OrderedDict
 
 import numpy as np
 import torch
@@ -49,7 +51,7 @@ class LoopClosure:
         self.rejected = 0                           # candidates verification turned down
         self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
         self.quiet_until = -1                       # keyframe position before which nothing is detected
-        self._features: dict[int, detect.Features] = {}
+        self._features: OrderedDict[int, detect.Features] = OrderedDict()   # LRU, config.feature_cache
         self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
 
     # -------------------------------------------------------------- one keyframe
@@ -77,7 +79,8 @@ class LoopClosure:
         visible = detect.visible_by_keyframe(means, owner, len(kfs), depth, current.w2c, slam.intrinsics)
         feats = self.features(j, current)
         orb = np.zeros(len(kfs))
-        for k in old:
+        sample = np.random.default_rng([self.seed, frame_index, 11])
+        for k in detect.orb_partners(old, visible, c.orb_by_map, c.orb_sample, sample):
             orb[k] = len(detect.match(feats, self.features(int(k), kfs[k])))
         picks = detect.candidates(j, frames, visible, orb, c.min_gap_frames, c.min_visible, c.min_orb_matches,
                                   c.max_candidates)
@@ -109,8 +112,14 @@ class LoopClosure:
         return max((e.b for e in self.edges if not e.robust), default=0)
 
     def features(self, k: int, kf) -> detect.Features:
-        if k not in self._features:
+        """Keyframe position k's ORB features, from a bounded LRU cache (recomputed from the keyframe's
+        stored image, deterministic, when evicted)."""
+        if k in self._features:
+            self._features.move_to_end(k)
+        else:
             self._features[k] = detect.orb_features(kf.images8()[0])
+            while len(self._features) > self.config.feature_cache:
+                self._features.popitem(last=False)
         return self._features[k]
 
     def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng, visible_k):

@@ -8,6 +8,11 @@ Two independent signals name old keyframes that the current keyframe may see aga
     orb       ORB descriptors (OpenCV, computed here: no vocabulary file, no weights) of the two
               keyframes' colour images matched with Lowe's ratio test: they look alike.
 
+ORB matching is bounded per keyframe: the old keyframes the map names most (`orb_by_map`) and a few
+others spread evenly over the run from a random offset (`orb_sample`), so its cost does not grow with
+the run; a place the map does not recognise (drift too large) is still met by the sample within a
+few keyframes of dwelling there, since neighbouring old keyframes look alike too.
+
 Only keyframes at least `min_gap_frames` older than the current one count (recent keyframes see the
 same things by continuity, not by returning). Candidates are ranked by the sum of their normalised
 scores; verification (verify.py) is what accepts a loop, so this step may be generous.
@@ -84,6 +89,18 @@ def visible_by_keyframe(means: np.ndarray, owner: np.ndarray, n_keyframes: int, 
     keys = np.unique(owner[near] * (h * w) + cells)
     np.add.at(counts, keys // (h * w), 1.0)
     return counts / valid
+
+
+def orb_partners(old: np.ndarray, visible: np.ndarray, by_map: int, sample: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """Which old keyframe positions (`old`, ascending) to ORB-match: the `by_map` with the highest
+    `visible` score, then `sample` of the rest at evenly spaced ranks from a random offset."""
+    if old.size <= by_map + sample:
+        return old
+    order = np.argsort(-visible[old], kind="stable")
+    named, rest = old[order[:by_map]], np.sort(old[order[by_map:]])
+    picks = np.floor((np.arange(sample) + rng.random()) * (rest.size / max(sample, 1))).astype(np.int64)
+    return np.sort(np.concatenate([named, rest[picks]])) if sample else np.sort(named)
 
 
 def candidates(current: int, keyframe_frames: np.ndarray, visible: np.ndarray, orb_matches: np.ndarray,
