@@ -257,9 +257,42 @@ def test_the_map_route_is_off_unless_asked():
 
 
 @pytest.mark.slow
-def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
+def test_live_engine_closes_the_loop_in_its_mapper(tmp_path, monkeypatch):
+    from splat_core.loop import LoopClosure
     from splat_core.run import Pipeline
+    from splat_core.slam import SplaTAM
     from splat_core.synthetic import LoopSource
+
+    # Every frame is tracked against a map that has the corrections its poses have: a version
+    # published before a correction must not be tracked against once the poses moved. The seam's
+    # re-mapping after a correction is slowed down, and tracking too (poses are given, so it would
+    # otherwise finish every frame before the first loop is applied), so frames are tracked then.
+    import time
+
+    applied, made_after, stale = [0], {}, []
+    apply, publish, latest = LoopClosure.apply, SplaTAM.publish, SplaTAM.latest_version
+    remap, track = LoopClosure.remap, SplaTAM.track
+    monkeypatch.setattr(LoopClosure, "remap", lambda *a: time.sleep(0.3) or remap(*a))
+    monkeypatch.setattr(SplaTAM, "track", lambda *a: time.sleep(0.03) or track(*a))
+
+    def counting_apply(*a):
+        apply(*a)
+        applied[0] += 1
+
+    def counting_publish(self, frame_index):
+        version = publish(self, frame_index)
+        made_after[version.number] = applied[0]
+        return version
+
+    def checked_latest(self):
+        version = latest(self)
+        if version is not None and made_after.get(version.number, 0) != applied[0]:
+            stale.append((version.number, applied[0]))
+        return version
+
+    monkeypatch.setattr(LoopClosure, "apply", staticmethod(counting_apply))
+    monkeypatch.setattr(SplaTAM, "publish", counting_publish)
+    monkeypatch.setattr(SplaTAM, "latest_version", checked_latest)
 
     # The mapper checks every keyframe of each batch (the tracker runs on while a loop closes, so a
     # batch may hold several); max_lag 0 keeps the batches short. Poses are exact and every accepted
@@ -281,3 +314,4 @@ def test_live_engine_closes_the_loop_in_its_mapper(tmp_path):
     assert metrics["ate_rmse_cm"] < 4.0
     for kf in pipe.slam.keyframes:
         assert np.allclose(pipe.slam.w2cs[kf.frame_index], kf.w2c, atol=1e-6), kf.frame_index
+    assert applied[0] >= 1 and stale == []

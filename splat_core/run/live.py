@@ -62,6 +62,24 @@ def mapper_stream(device):
     return torch.cuda.stream(torch.cuda.Stream(device))
 
 
+class _PublishOnRelease:
+    """A loop correction's lock: holds `lock`, and publishes the map (moved by the correction) before
+    releasing it."""
+
+    def __init__(self, lock: threading.Lock, publish):
+        self.lock, self.publish = lock, publish
+
+    def __enter__(self):
+        self.lock.acquire()
+
+    def __exit__(self, kind, value, traceback):
+        try:
+            if kind is None:
+                self.publish()
+        finally:
+            self.lock.release()
+
+
 class LiveEngine:
     def __init__(self, slam: SplaTAM, config: LiveConfig):
         self.slam, self.config = slam, config
@@ -77,13 +95,15 @@ class LiveEngine:
         self.num_added = self.num_pruned = 0
         # Loop closure (splat_core/loop/) runs in this mapper thread after a keyframe; while it runs the
         # tracker does not wait for the map (a loop never stalls tracking), and its pose edits happen
-        # under _poses, which the tracker holds while it tracks one frame (so no frame is tracked
-        # against a map older than the poses it is appended to).
+        # under _poses, which the tracker holds while it tracks one frame; the moved map is published
+        # before _poses is released (so no frame is tracked against a map older than the poses it is
+        # appended to; the seam's re-mapping comes in the next version).
         self._poses = threading.Lock()
         self._closing_loop = False
+        self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
         self.loops: list[dict] = []          # closed since the tracker last took them (FrameResult.loops)
         if slam.loop_closure is not None:
-            slam.loop_closure.apply_lock = self._poses
+            slam.loop_closure.apply_lock = self._correcting()
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
 
@@ -190,7 +210,7 @@ class LiveEngine:
     def _map(self, batch: list) -> None:
         start = time.perf_counter()
         slam = self.slam
-        newest = batch[-1][0]
+        newest = self._batch_newest = batch[-1][0]
         for t, frame, w2c in batch:
             if t == newest or slam.is_keyframe(t):
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
@@ -209,6 +229,9 @@ class LiveEngine:
         with self._cond:
             self._mapped = newest
             self._cond.notify_all()
+
+    def _correcting(self) -> _PublishOnRelease:
+        return _PublishOnRelease(self._poses, lambda: self.slam.publish(self._batch_newest))
 
     def _close_loops(self, t: int) -> list:
         """Loop closure after keyframe t (the tracker runs on meanwhile); frames handed over and not
