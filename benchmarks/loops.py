@@ -4,19 +4,24 @@ with drifting odometry, and captures that never return (no loop may close there)
     python benchmarks/loops.py --sequences 7scenes_redkitchen_600 --modes on,off --open3d --json
     python benchmarks/loops.py --sequences 7scenes_redkitchen_300,sun3d_3dmatch_fragment1,sun3d_3dmatch_fragment2
     python benchmarks/loops.py --sequences none --synthetic-loop 120 --corridor 300
+    python benchmarks/loops.py --sequences none --live-lap 240 --detect-cost 400 --json
 
 Real sequences run `splatam run` (benchmarks/slam.py's run_one, default preset cpu) with
 loop_closure on and off; each row adds loops_closed and the loops (frames, inliers, correction),
 ate_rmse_split_cm where the reference has a flagged step, the largest error after that alignment
 (ate_max_split_cm), and the ATE of each stretch of --segment frames aligned on its own
-(segment_ate_cm: where a run's error grows). --synthetic-loop N: splat_core.synthetic.LoopSource
-of N frames at 160x120 with DriftingOdometry (1 mm and 0.1 degree per frame), with and without loop
-closure, and at the exact poses: ATE and the map's depth error against the noise-free depth at the
-estimated poses (a doubled surface shows there; the exact-pose row is the error of a map without one). --live-lap N: the live
-engine on the lap with every loop applied: how long a correction locks the poses (the longest the
-tracker can wait) against its time per frame. --detect-cost K: one keyframe's loop detection time at K/8 ... K keyframes before it, bounded against matching every
-old keyframe (what the code did before the bound), side by side. --corridor N: the synthetic corridor walk with the same drift; any
-loop closed there is false.
+(segment_ate_cm: where a run's error grows).
+
+--synthetic-loop N: splat_core.synthetic.LoopSource of N frames at 160x120 with DriftingOdometry
+(1 mm and 0.1 degree per frame), with and without loop closure, and at the exact poses: ATE and
+the map's depth error against the noise-free depth at the estimated poses (a doubled surface shows
+there; the exact-pose row is the error of a map without one). --corridor N: the synthetic corridor
+walk with the same drift; any loop closed there is false.
+
+--live-lap N: the live engine on the lap with every loop applied: how long a correction locks the
+poses (the longest the tracker can wait) against its time per frame. --detect-cost K: one
+keyframe's loop detection time at K/8 ... K keyframes before it, bounded against matching every
+old keyframe (what the code did before the bound), side by side.
 """
 
 from __future__ import annotations
@@ -180,7 +185,8 @@ def detect_cost_rows(args) -> list[dict]:
     cfg = load_config(args.preset)
     w, h = cfg.resolution
     every = 5
-    source = CorridorSource(n_frames=every * args.detect_cost, width=w, height=h, speed=1000 / (every * args.detect_cost))
+    frames = every * args.detect_cost
+    source = CorridorSource(n_frames=frames, width=w, height=h, speed=1000 / frames)
     kfs = []
     for k in range(args.detect_cost):
         f = source[every * k]
@@ -194,7 +200,8 @@ def detect_cost_rows(args) -> list[dict]:
     rows = []
     for n in sorted({max(1, args.detect_cost // 8), args.detect_cost // 4, args.detect_cost // 2, args.detect_cost}):
         slam = SimpleNamespace(keyframes=kfs[:n], intrinsics=source.intrinsics,
-                               map=SimpleNamespace(means=torch.zeros(0, 3), birth_frame=torch.zeros(0, dtype=torch.int64)))
+                               map=SimpleNamespace(means=torch.zeros(0, 3),
+                                                   birth_frame=torch.zeros(0, dtype=torch.int64)))
         closers = {name: LoopClosure(c) for name, c in settings.items()}
         closers["bounded, cold"] = LoopClosure(settings["bounded"])
         for closer in closers.values():             # features of the old keyframes computed once beforehand
@@ -254,7 +261,8 @@ def main() -> None:
     args = p.parse_args()
     work = Path(args.work).resolve() if args.work else Path(tempfile.mkdtemp(prefix="splatam_loops_"))
     work.mkdir(parents=True, exist_ok=True)
-    rows = real_rows(args, work) + open3d_rows(args) + synthetic_rows(args) + live_lap_rows(args) + detect_cost_rows(args)
+    rows = (real_rows(args, work) + open3d_rows(args) + synthetic_rows(args) + live_lap_rows(args)
+            + detect_cost_rows(args))
     if args.json:
         print(json.dumps(rows, indent=1))
 

@@ -100,7 +100,7 @@ def orb_partners(old: np.ndarray, visible: np.ndarray, by_map: int, sample: int,
     order = np.argsort(-visible[old], kind="stable")
     named, rest = old[order[:by_map]], np.sort(old[order[by_map:]])
     picks = np.floor((np.arange(sample) + rng.random()) * (rest.size / max(sample, 1))).astype(np.int64)
-    return np.sort(np.concatenate([named, rest[picks]])) if sample else np.sort(named)
+    return np.sort(np.concatenate([named, rest[picks]]))
 
 
 def candidates(current: int, keyframe_frames: np.ndarray, visible: np.ndarray, orb_matches: np.ndarray,

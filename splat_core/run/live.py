@@ -103,7 +103,7 @@ class LiveEngine:
         self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
         self.loops: list[dict] = []          # closed since the tracker last took them (FrameResult.loops)
         if slam.loop_closure is not None:
-            slam.loop_closure.apply_lock = self._correcting()
+            slam.loop_closure.apply_lock = _PublishOnRelease(self._poses, lambda: slam.publish(self._batch_newest))
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
 
@@ -229,9 +229,6 @@ class LiveEngine:
         with self._cond:
             self._mapped = newest
             self._cond.notify_all()
-
-    def _correcting(self) -> _PublishOnRelease:
-        return _PublishOnRelease(self._poses, lambda: self.slam.publish(self._batch_newest))
 
     def _close_loops(self, t: int) -> list:
         """Loop closure after keyframe t (the tracker runs on meanwhile); frames handed over and not
