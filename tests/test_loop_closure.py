@@ -100,7 +100,6 @@ def test_candidates_are_old_and_seen_again():
     assert owner.tolist() == [0, 0, 1, 1, 6]
 
 
-
 def test_orb_partners_are_the_map_named_keyframes_plus_an_even_sample():
     old = np.arange(100)
     visible = np.zeros(120)

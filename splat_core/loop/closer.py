@@ -88,8 +88,9 @@ class LoopClosure:
             return []
         rng = np.random.default_rng([self.seed, frame_index, 7])
         color = current.color
+        old_map = self.old_part(slam, frame_index)          # the same for every candidate
         for k in picks:
-            verdict = self._verify(slam, kfs, j, k, feats, color, depth, frame_index, rng, visible[k])
+            verdict = self._verify(slam, kfs, j, k, feats, color, depth, old_map, rng, visible[k])
             if verdict.accepted:
                 record = self._close(slam, kfs, j, k, verdict, visible[k], orb[k], start)
                 self.quiet_until = j + 1 + c.cooldown_keyframes
@@ -122,17 +123,18 @@ class LoopClosure:
                 self._features.popitem(last=False)
         return self._features[k]
 
-    def _verify(self, slam, kfs, j, k, feats, color, depth, frame_index, rng, visible_k):
-        c = self.config
-        old_kf = kfs[k]
-        keep = slam.map.birth_frame <= frame_index - c.min_gap_frames
+    def old_part(self, slam, frame_index: int) -> Gaussians:
+        """The Gaussians born at least min_gap_frames before frame_index (what verification aligns to)."""
+        keep = slam.map.birth_frame <= frame_index - self.config.min_gap_frames
         g = slam.map.tensors(detach=True)
         idx = torch.nonzero(keep.to(g.means.device)).flatten()
-        old_map = Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
-        c2w_old = invert_pose(old_kf.w2c)
+        return Gaussians(*(x[idx] for x in (g.means, g.colors, g.rotations, g.logit_opacities, g.log_scales)))
+
+    def _verify(self, slam, kfs, j, k, feats, color, depth, old_map, rng, visible_k):
+        old_kf = kfs[k]
         estimate = self.map_route_start(kfs[j], visible_k)
-        return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), c2w_old,
-                      old_map, slam.intrinsics, c, rng, verification_align(slam), estimate)
+        return verify((feats, color, depth), (self.features(k, old_kf), None, old_kf.depth), invert_pose(old_kf.w2c),
+                      old_map, slam.intrinsics, self.config, rng, verification_align(slam), estimate)
 
     def map_route_start(self, current, visible_k: float) -> np.ndarray | None:
         """Where verification starts when RANSAC finds too little: the tracked pose, if the map route
