@@ -52,7 +52,7 @@ class LoopClosure:
         self.rejected_by: dict[str, int] = {}       # ... per failed test (verify.Verdict.reason)
         self.quiet_until = -1                       # keyframe position before which nothing is detected
         self._features: OrderedDict[int, detect.Features] = OrderedDict()   # LRU, config.feature_cache
-        self.apply_lock = contextlib.nullcontext()  # the live engine's: held while poses change
+        self.apply_lock = contextlib.nullcontext    # a context per correction; the live engine's holds its pose lock
 
     # -------------------------------------------------------------- one keyframe
     def after_keyframe(self, slam, frame_index: int) -> list[dict]:
@@ -159,7 +159,7 @@ class LoopClosure:
             new_c2ws, robust = pose_graph.optimise(old_c2ws, self.edges)
             inconsistent = [self.edges[n].a for n in robust]
             moved_m, moved_deg = pose_difference(old_c2ws[j], new_c2ws[j])
-            with self.apply_lock:                   # the live engine's also publishes the moved map
+            with self.apply_lock():                 # the live engine's also publishes the moved map
                 held = time.perf_counter()
                 self.apply(slam, kfs, old_c2ws, new_c2ws)
             locked = time.perf_counter() - held     # what the live tracker may wait

@@ -36,9 +36,9 @@ def run_drifting(source, config: Config, loop_closure: bool, bias_m: float, bias
         _, exact = source.render_view(source.reference_c2w()[t])
         with torch.no_grad():      # at the estimated pose: a doubled surface shows as a depth error
             out = slam.renderer.render_visible(g, source.intrinsics, slam.w2cs[t])
-        d = out.depth.cpu().numpy()
-        ok = (exact > 0) & (out.alpha.cpu().numpy() > 0.5)
-        err = np.abs(d[ok] / np.maximum(out.alpha.cpu().numpy()[ok], 1e-6) - exact[ok])
+        d, alpha = out.depth.cpu().numpy(), out.alpha.cpu().numpy()
+        ok = (exact > 0) & (alpha > 0.5)
+        err = np.abs(d[ok] / np.maximum(alpha[ok], 1e-6) - exact[ok])
         depth_err.append(float(np.mean(err)))
         depth_median.append(float(np.median(err)))
     return dict(loop_closure=loop_closure, frames=len(source), ate_rmse_cm=100 * M.ate_rmse(est, ref),

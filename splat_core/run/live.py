@@ -62,24 +62,6 @@ def mapper_stream(device):
     return torch.cuda.stream(torch.cuda.Stream(device))
 
 
-class _PublishOnRelease:
-    """A loop correction's lock: holds `lock`, and publishes the map (moved by the correction) before
-    releasing it."""
-
-    def __init__(self, lock: threading.Lock, publish):
-        self.lock, self.publish = lock, publish
-
-    def __enter__(self):
-        self.lock.acquire()
-
-    def __exit__(self, kind, value, traceback):
-        try:
-            if kind is None:
-                self.publish()
-        finally:
-            self.lock.release()
-
-
 class LiveEngine:
     def __init__(self, slam: SplaTAM, config: LiveConfig):
         self.slam, self.config = slam, config
@@ -103,7 +85,7 @@ class LiveEngine:
         self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
         self.loops: list[dict] = []          # closed since the tracker last took them (FrameResult.loops)
         if slam.loop_closure is not None:
-            slam.loop_closure.apply_lock = _PublishOnRelease(self._poses, lambda: slam.publish(self._batch_newest))
+            slam.loop_closure.apply_lock = self._correction_lock
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
 
@@ -111,6 +93,14 @@ class LiveEngine:
         if self._thread is None:
             self._thread = threading.Thread(target=self._run_mapper, name="slam-mapper", daemon=True)
             self._thread.start()
+
+    @contextlib.contextmanager
+    def _correction_lock(self):
+        """A loop correction's lock: holds the poses, and publishes the map the correction moved
+        before releasing them."""
+        with self._poses:
+            yield
+            self.slam.publish(self._batch_newest)
 
     # ------------------------------------------------------------------ the tracker's side
     def process(self, frame: Frame, w2c_given=None) -> FrameResult:
