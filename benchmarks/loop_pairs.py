@@ -35,11 +35,10 @@ from common import DATA, machine_line  # noqa: E402
 def cloud(frame, intr, voxel: float):
     import open3d as o3d
 
-    d = np.asarray(frame.depth, np.float64)
-    v, u = np.nonzero(d > 0)
-    z = d[v, u]
-    pts = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(voxel)
+    from splat_core.camera import backproject
+
+    d = np.asarray(frame.depth)
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(backproject(d, intr)[d > 0])).voxel_down_sample(voxel)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
     return pc
 
@@ -125,7 +124,7 @@ def main(argv=None) -> int:
             print(row, flush=True)
     summary = {"machine": machine_line(), "sequence": args.sequence, "run": str(args.run), "pairs": rows}
     agreed = [r for r in rows if r["converged_apart_cm"] < 0.5]
-    for name in rel:
+    for name in ("reference", *poses):
         summary[f"median_depth_icp_vs_{name}_cm"] = (
             round(float(np.median([r[f"depth_icp_vs_{name}_cm"] for r in agreed])), 2) if agreed else None)
     print(json.dumps(summary, indent=1) if args.json else {k: v for k, v in summary.items() if k != "pairs"})

@@ -1,5 +1,5 @@
 """benchmarks/loop_pairs.py: depth-only registration of a revisit recovers the exact relative pose
-from either start, and the revisit pairs come from the reference's poses."""
+from a start centimetres off, and the revisit pairs come from the reference's poses."""
 import sys
 from pathlib import Path
 
