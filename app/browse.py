@@ -15,6 +15,7 @@ import numpy as np
 
 from splat_core.camera import invert_pose
 from splat_core.io.map_files import map_path_of, read_map_file
+from splat_core.loop.records import LoopRecord
 from splat_core.run.run_folder import RunFolder
 
 from .snapshot import KeyframeView, MapSnapshot, freeze_gaussians, frozen, make_thumbnail
@@ -48,7 +49,7 @@ def load_run(path) -> MapSnapshot:
         metrics = folder.read_metrics() or {}
         ate = metrics.get("ate_rmse_cm")
         if isinstance(metrics.get("loops"), list):      # written when the run had loop closure on
-            loops = tuple(r for r in metrics["loops"] if isinstance(r, dict))
+            loops = tuple(LoopRecord.from_dict(r) for r in metrics["loops"] if isinstance(r, dict))
     return MapSnapshot(
         version=1, state="browse", near_plane=near_plane_of(path), frame_index=len(c2w) - 1, total_frames=len(c2w),
         map_version=1, gaussians=freeze_gaussians(gaussians), keyframes=keyframes, intrinsics=intrinsics,

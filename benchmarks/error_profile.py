@@ -70,7 +70,7 @@ def sensor_steps(path: Path, est: np.ndarray, frames: range, step: int) -> dict:
     from splat_core.run.pipeline import Pipeline
 
     pipe = Pipeline(open_capture(path), load_config("cpu"), None, device="cpu")
-    intr, kw = pipe.intrinsics, verification_align(pipe.slam)
+    intr, kw = pipe.intrinsics, verification_align(pipe.engine.slam.view())
     out = {}
     for f in frames:
         if f + step >= len(est):

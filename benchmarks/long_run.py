@@ -93,9 +93,9 @@ def child_memory(args) -> dict:
         start = time.perf_counter()
         while pipe.step() is not None:
             rss.append(rss_mb())
-            gaussians.append(len(pipe.slam.map))
+            gaussians.append(len(pipe.engine.slam.map))
         seconds = time.perf_counter() - start
-        store = pipe.slam.keyframes
+        store = pipe.engine.slam.keyframes
         resident = store.resident_bytes() / 2**20 if hasattr(store, "resident_bytes") else None
     first = min(100, len(rss) // 2)
     orbit = first_orbit(source.c2w)

@@ -36,14 +36,14 @@ from splat_core.synthetic import SyntheticPhoneCapture  # noqa: E402
 def map_psnr(pipe: Pipeline, source, size) -> float:
     """Mean PSNR of the final map at the estimated poses, rendered at `size`, on the eval frames."""
     intr = source.intrinsics.scaled(*size)
-    g = pipe.slam.map.tensors(detach=True)
+    g = pipe.engine.slam.map.tensors(detach=True)
     values = []
     for k in range(len(pipe.records)):
         if k != 0 and (k + 1) % 5 != 0:
             continue
         gt = source.frame_at_size(int(pipe.records[k]["source_index"]), *size).color
         with torch.no_grad():
-            out = pipe.slam.renderer.render(g, intr, pipe.slam.w2cs[k])
+            out = pipe.engine.slam.renderer.render(g, intr, pipe.engine.slam.w2cs[k])
         values.append(float(M.psnr(out.color, torch.as_tensor(gt, device=out.color.device))))
     return statistics.fmean(values)
 
@@ -62,7 +62,7 @@ def run_size(source, preset: str, size, frames: int, eval_size) -> dict:
     return dict(size=f"{size[0]}x{size[1]}", upsampling=round(size[0] / dw, 3), frames=len(pipe.records),
                 seconds_per_frame_median=statistics.median(wall[1:]), total_seconds=total,
                 ate_cm=pipe.ate_cm(), psnr_at_eval_size=map_psnr(pipe, source, eval_size),
-                psnr_at_working_size=pipe.evaluate()["psnr"], num_gaussians=len(pipe.slam.map))
+                psnr_at_working_size=pipe.evaluate()["psnr"], num_gaussians=len(pipe.engine.slam.map))
 
 
 def main() -> None:

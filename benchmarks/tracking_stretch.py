@@ -34,11 +34,11 @@ from common import DATA, machine_line  # noqa: E402
 
 def births_in_view(pipe, t: int, bins: int = 50) -> dict:
     """Share of the Gaussians whose centres fall in frame t's view, by birth stretch (frames)."""
-    g = pipe.slam.map
+    g = pipe.engine.slam.map
     means = g.params["means"].detach().cpu().numpy()
     opacity = 1.0 / (1.0 + np.exp(-g.params["logit_opacities"].detach().cpu().numpy().reshape(-1)))
     birth = g.birth_frame.cpu().numpy()
-    w2c, intr = pipe.slam.w2cs[t], pipe.intrinsics
+    w2c, intr = pipe.engine.slam.w2cs[t], pipe.intrinsics
     p = means @ w2c[:3, :3].T + w2c[:3, 3]
     z = np.maximum(p[:, 2], 1e-6)
     u, v = intr.fx * p[:, 0] / z + intr.cx, intr.fy * p[:, 1] / z + intr.cy

@@ -1,7 +1,7 @@
 """Lost tracking: detected from the tracker's own numbers, held, and relocalised against the keyframes.
 
     watch = LostTracking(config.lost_tracking, tracker)
-    tracked, w2c = watch.check(t, frame, tracked, gaussians, w2cs, keyframes)
+    verdict = watch.check(t, frame, tracked, gaussians, w2c_good, keyframes)   # SplaTAM applies it
 
 A tracked pose is not believed (the frame is *lost*, `lost_reason`) when
     the map's silhouette covers too little of the frame's valid depth (min_coverage): the camera
@@ -84,6 +84,15 @@ def interpolate_pose(w2c_a: np.ndarray, w2c_b: np.ndarray, s: float) -> np.ndarr
     return invert_pose(pose_matrix(c2w_a[:3, :3] @ step, (1 - s) * c2w_a[:3, 3] + s * c2w_b[:3, 3]))
 
 
+@dataclass
+class Verdict:
+    """What LostTracking.check returns for one frame."""
+
+    result: TrackResult | None          # the tracker's result to report
+    w2c: np.ndarray                     # the frame's pose (the last tracked one while lost)
+    filled: dict = dataclasses.field(default_factory=dict)   # lost frames' poses, interpolated now it is found
+
+
 class LostTracking:
     """Which frames are lost, and the relocalisation of a lost frame (see the module docstring)."""
 
@@ -123,25 +132,30 @@ class LostTracking:
 
     # -------------------------------------------------------------- one frame
     def check(self, t: int, frame: Frame, tracked: TrackResult | None, gaussians: Gaussians,
-              w2cs: list[np.ndarray], keyframes: list) -> tuple[TrackResult | None, np.ndarray]:
-        """(the result to report, frame t's pose). `tracked`: the tracker's result from the
-        constant-velocity prediction, None while lost (relocalisation only)."""
+              w2c_good: np.ndarray, keyframes: list) -> "Verdict":
+        """Frame t's verdict. `tracked`: the tracker's result from the constant-velocity prediction,
+        None while lost (relocalisation only); `w2c_good`: the pose of the last tracked frame
+        (`self.good[0]`). Changes only this watch's own state; SplaTAM applies the verdict."""
         if not self.config.enabled:
             self.tracked(t, frame, tracked)
-            return tracked, tracked.w2c
-        w2c_good = w2cs[self.good[0]]
+            return Verdict(tracked, tracked.w2c)
         reason = "tracking was lost" if tracked is None else self.judge(tracked, w2c_good, frame)
         relocalised = reason is not None
         if relocalised:
             tracked, reason = self.relocalise(frame, gaussians, w2c_good, keyframes, tracked, reason)
         if reason is None:
             self.relocalised = t if relocalised else self.relocalised
-            for k in range(self.good[0] + 1, t):      # the lost frames since the last tracked one
-                w2cs[k] = interpolate_pose(w2c_good, tracked.w2c, (k - self.good[0]) / (t - self.good[0]))
+            good = self.good[0]
+            filled = {k: interpolate_pose(w2c_good, tracked.w2c, (k - good) / (t - good))
+                      for k in range(good + 1, t)}       # the lost frames since the last tracked one
             self.tracked(t, frame, tracked)
-            return tracked, tracked.w2c
+            return Verdict(tracked, tracked.w2c, filled)
         self.lost[t] = reason
-        return tracked, w2c_good.copy()
+        return Verdict(tracked, w2c_good.copy())
+
+    def forget(self, t: int) -> None:
+        """Frame t is tracked again (the live engine's retry): drop its lost mark."""
+        self.lost.pop(t, None)
 
     def judge(self, result: TrackResult, w2c_good: np.ndarray, frame: Frame) -> str | None:
         per_pixel = result.loss / result.valid_pixels if result.valid_pixels and result.loss is not None else np.inf

@@ -12,16 +12,20 @@
 `process` runs the two halves in order (the sequential engine: deterministic, resumable bit for
 bit). The live engine (run/live.py) calls `track` and `map_frame` from two threads instead; both
 read the map through `MapVersion`s that `publish` makes, never the tensors the mapper is stepping.
+
+SplaTAM is the only writer of its state (map, poses, keyframes, loops). Its collaborators get a
+read-only view and return results that it applies: lost tracking a Verdict (relocalise.py), loop
+closure a LoopFound with its Correction (loop/). An engine chooses the locking around applying a
+correction (`close_loops(t, guard)`). `state_arrays` / `load_state_arrays` save and load all of it.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-import functools
 import json
 import threading
 import time
-from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -32,91 +36,15 @@ from .densify import gaussians_from_pixels, new_pixel_mask
 from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
+from .loop import LoopClosure, anchors
+from .loop.records import Correction, LoopRecord
 from .mapping import View, optimise_map, prune_mask
-from .loop import LoopClosure
 from .relocalise import LostTracking
 from .render import Renderer
+from .slam_state import FrameResult, MapStats, MapVersion, SlamView, snapshot_version
 from .tracking import Tracker, TrackResult
 
-
-@dataclass
-class FrameResult:
-    index: int                    # processed-frame number (0 = first frame, the world origin)
-    timestamp: float
-    w2c: np.ndarray               # estimated pose, 4 x 4
-    is_keyframe: bool
-    num_gaussians: int
-    num_added: int
-    num_pruned: int
-    tracking_seconds: float
-    mapping_seconds: float
-    tracking_loss: float | None
-    tracking_iterations: int = 0
-    source_index: int = 0         # frame number in the capture
-    frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution
-    map_version: int = 0          # the map version the frame was tracked against
-    lost: str | None = None       # why tracking was lost on this frame (its pose is the last tracked one); None: tracked
-    loops: list = field(default_factory=list)   # loops closed at this frame (splat_core/loop/closer.py records)
-
-    @property
-    def c2w(self) -> np.ndarray:
-        return invert_pose(self.w2c)
-
-
-@dataclass(frozen=True)
-class MapVersion:
-    """An immutable copy of the map as the mapper published it (renderers may read it from any thread)."""
-
-    number: int
-    frame_index: int              # the newest frame mapped into it (-1: empty map)
-    gaussians: Gaussians          # detached tensors, never modified after publishing
-    birth_frame: torch.Tensor
-    ready: object = None          # CUDA: an event recorded after the copy on the publishing stream
-    loops: tuple = ()             # every loop closed so far (keyframes, frames, correction; closer.py records)
-
-    def __len__(self) -> int:
-        return len(self.gaussians)
-
-    def wait_ready(self) -> "MapVersion":
-        """Make the calling thread's current CUDA stream wait for the copy (no host wait), and tell
-        torch's allocator that stream uses these tensors (their memory, from the mapper's stream,
-        is not reused before the reader's queued work is done). Nothing to do on the CPU."""
-        if self.ready is not None:
-            stream = torch.cuda.current_stream(self.gaussians.means.device)
-            stream.wait_event(self.ready)
-            for x in (*self.gaussians.fields(), self.birth_frame):
-                if x.is_cuda:
-                    x.record_stream(stream)
-        return self
-
-    @functools.cached_property
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Read-only numpy arrays of the version (GaussianMap.to_numpy() layout), made on the first
-        call, by whichever thread reads first, and kept: on the CPU they share the tensors' memory."""
-        out = self.wait_ready().gaussians.to_arrays()
-        out["birth_frame"] = self.birth_frame.cpu().numpy()
-        for a in out.values():
-            a.setflags(write=False)
-        return out
-
-
-def snapshot_version(gmap: GaussianMap, number: int, frame_index: int, loops: tuple = ()) -> MapVersion:
-    """A MapVersion of `gmap` as it is now (copies: later steps never touch it). On CUDA the copy
-    carries an event recorded on the publishing stream (the live engine's mapper has its own)."""
-    g = gmap.tensors(detach=True)
-    copy = Gaussians(*(x.clone() for x in g.fields()))
-    ready = None
-    if g.means.is_cuda:
-        ready = torch.cuda.Event()
-        ready.record(torch.cuda.current_stream(g.means.device))
-    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready, loops)
-
-
-@dataclass
-class MapStats:
-    added: int = 0
-    pruned: int = 0
-    seconds: float = 0.0
+__all__ = ["SplaTAM", "FrameResult", "MapStats", "MapVersion", "snapshot_version"]
 
 
 class SplaTAM:
@@ -133,6 +61,7 @@ class SplaTAM:
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
         self.loop_closure = LoopClosure(config.loop_closure, config.seed) if config.loop_closure.enabled else None
         self.w2cs: list[np.ndarray] = []
+        self.loops: list[LoopRecord] = []        # every loop closed, oldest first
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
         self.total_frames = total_frames          # lets the second-to-last frame become a keyframe
@@ -197,7 +126,10 @@ class SplaTAM:
                 w2c_before = self.w2cs[-2] if watch.velocity_known(t) else None
                 w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before)
                 tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted)
-            tracked, w2c = watch.check(t, frame, tracked, gaussians, self.w2cs, list(self.keyframes))
+            verdict = watch.check(t, frame, tracked, gaussians, self.w2cs[watch.good[0]], list(self.keyframes))
+            for k, w2c_k in verdict.filled.items():
+                self.w2cs[k] = w2c_k
+            tracked, w2c = verdict.result, verdict.w2c
         self.w2cs.append(w2c)
         return t, w2c, tracked
 
@@ -207,7 +139,7 @@ class SplaTAM:
         if t != len(self.w2cs) - 1:
             raise ValueError(f"retract: frame {t} is not the newest tracked frame ({len(self.w2cs) - 1})")
         self.w2cs.pop()
-        self.lost_tracking.lost.pop(t, None)
+        self.lost_tracking.forget(t)
 
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True) -> MapStats:
         """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe."""
@@ -224,14 +156,54 @@ class SplaTAM:
         stats.seconds = time.perf_counter() - start
         return stats
 
-    def close_loops(self, t: int) -> list[dict]:
-        """Loop closure after keyframe t was mapped (splat_core/loop/): the loops accepted now."""
+    def close_loops(self, t: int, guard=contextlib.nullcontext) -> list[LoopRecord]:
+        """Loop closure after keyframe t was mapped (splat_core/loop/): the loops accepted now. A
+        correction is applied inside `guard()` (the live engine's holds its pose lock and publishes
+        the moved map before releasing it), the seam re-mapped after."""
         if self.loop_closure is None:
             return []
-        return self.loop_closure.after_keyframe(self, t)
+        start = time.perf_counter()
+        found = self.loop_closure.after_keyframe(self.view(), t)
+        if found is None:
+            return []
+        held = 0.0
+        if found.correction is not None:
+            with guard():
+                begin = time.perf_counter()
+                self.apply_correction(found.correction)
+            held = time.perf_counter() - begin      # what the live tracker may wait
+            self.remap(found.correction)
+        record = dataclasses.replace(found.record, seconds=time.perf_counter() - start, apply_seconds=held)
+        self.loops.append(record)
+        return [record]
 
-    def all_loops(self) -> tuple:
-        return tuple(self.loop_closure.loops) if self.loop_closure is not None else ()
+    def view(self) -> SlamView:
+        """What loop closure reads: the keyframes and the map as they are now (read only)."""
+        return SlamView(self.config, self.intrinsics, self.renderer.near, tuple(self.keyframes),
+                        self.map.tensors(detach=True), self.map.birth_frame)
+
+    def apply_correction(self, correction: Correction) -> None:
+        """Move keyframes, frame poses and Gaussians by the keyframes' corrections (loop/anchors.py)."""
+        C = anchors.corrections(correction.old_c2ws, correction.new_c2ws)
+        for kf, c2w in zip(self.keyframes, correction.new_c2ws):
+            kf.w2c = invert_pose(c2w)
+        anchors.move_poses(self.w2cs, correction.keyframe_frames, C)
+        anchors.move_gaussians(self.map, correction.keyframe_frames, C)
+
+    def remap(self, correction: Correction) -> None:
+        """A short mapping run over the loop's keyframes and their neighbours (the seams)."""
+        if correction.remap_keyframes and correction.remap_iterations:
+            kfs = list(self.keyframes)
+            self.optimise([self.keyframe_view(kfs[p]) for p in correction.remap_keyframes],
+                          iterations=correction.remap_iterations)
+
+    def loop_figures(self) -> dict | None:
+        """metrics.json's loop figures (None: loop closure is off)."""
+        closer = self.loop_closure
+        if closer is None:
+            return None
+        return dict(loops_closed=len(self.loops), loops_rejected=closer.rejected,
+                    loops_rejected_by=dict(closer.rejected_by), loops=[r.to_dict() for r in self.loops])
 
     # ------------------------------------------------------------------ steps
     def densify(self, color, depth, w2c, t) -> int:
@@ -256,6 +228,11 @@ class SplaTAM:
             views.append(self.keyframe_view(kf))
         return views
 
+    def render_view(self, w2c: np.ndarray):
+        """The map rendered at w2c, no gradients (evaluation, previews)."""
+        with torch.no_grad():
+            return self.renderer.render_visible(self.map.tensors(detach=True), self.intrinsics, w2c)
+
     def keyframe_view(self, kf: Keyframe) -> View:
         return View(self._tensor(kf.color), self._tensor(kf.depth), kf.w2c)
 
@@ -279,7 +256,7 @@ class SplaTAM:
         """Make the current map the latest version (copy-on-publish: later steps never touch it)."""
         with self._version_lock:
             self._versions_made += 1
-            self._version = snapshot_version(self.map, self._versions_made, frame_index, self.all_loops())
+            self._version = snapshot_version(self.map, self._versions_made, frame_index, tuple(self.loops))
             return self._version
 
     def latest_version(self) -> MapVersion | None:
@@ -296,8 +273,10 @@ class SplaTAM:
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
         arrays["tracker_state"] = np.array(self.tracker.state())
+        arrays["lost_state"] = np.array(self.lost_tracking.state())
         if self.loop_closure is not None:
             arrays["loop_state"] = np.array(self.loop_closure.state())
+            arrays["loops"] = np.array(json.dumps([r.to_dict() for r in self.loops]))
         return arrays
 
     def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
@@ -311,5 +290,8 @@ class SplaTAM:
         self.rng.bit_generator.state = json.loads(str(arrays["rng_state"]))
         if "tracker_state" in arrays:
             self.tracker.load_state(str(arrays["tracker_state"]))
+        if "lost_state" in arrays:
+            self.lost_tracking.load_state(str(arrays["lost_state"]))
         if self.loop_closure is not None and "loop_state" in arrays:
             self.loop_closure.load_state(str(arrays["loop_state"]))
+            self.loops = [LoopRecord.from_dict(r) for r in json.loads(str(arrays.get("loops", "[]")))]

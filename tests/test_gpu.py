@@ -185,5 +185,5 @@ def test_gpu_preset_runs_live_on_cuda_with_a_reader_thread():
         stop.set()
         reader.join()
     assert not errors, errors
-    assert pipe.slam.map.device.type == "cuda" and metrics["frames"] == 12
+    assert pipe.engine.slam.map.device.type == "cuda" and metrics["frames"] == 12
     assert metrics["ate_rmse_cm"] < 1.0 and metrics["psnr"] > 25

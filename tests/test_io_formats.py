@@ -517,5 +517,5 @@ def test_unregistered_capture_is_tracked_on_depth_alone(tmp_path):
     cam.write_text(cam.read_text() + "depth_registered_to_rgb: false\n")
     pipe = Pipeline(open_capture(fx.path), config)
     assert pipe.config.tracking.color_weight == 0 and pipe.config.tracking.align.color_weight == 0
-    assert pipe.slam.config.tracking.color_weight == 0 and "not registered" in pipe.notes[0]
+    assert pipe.engine.slam.config.tracking.color_weight == 0 and "not registered" in pipe.notes[0]
     assert config.tracking.color_weight > 0          # the caller's config is left alone

@@ -69,7 +69,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
     def viewer():          # novel views of whatever version is newest, as the viewer thread does
         try:
             while not stop.is_set():
-                if live.slam.latest_version() is None:
+                if live.engine.slam.latest_version() is None:
                     continue
                 version = live.map_version()
                 seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))
@@ -93,7 +93,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
         assert version.gaussians.means.sum().item() == checksum, number
     assert metrics["engine"] == "live" and metrics["live"]["mapper_steps"] >= 2
     assert live.ate_cm() <= 1.5 * sequential.ate_cm() + 0.05, (live.ate_cm(), sequential.ate_cm())
-    assert len(live.slam.keyframes) == len(sequential.slam.keyframes)
+    assert len(live.engine.slam.keyframes) == len(sequential.engine.slam.keyframes)
 
 
 @pytest.mark.slow
@@ -107,7 +107,7 @@ def test_live_run_resumes_from_its_checkpoint(tmp_path):
     first.engine.close()
     resumed = _run(Pipeline(_source(8), config, tmp_path, engine="live", resume=True))
     resumed.finish()
-    assert len(resumed.slam.w2cs) == 8 and resumed.ate_cm() < 1.0
+    assert len(resumed.engine.slam.w2cs) == 8 and resumed.ate_cm() < 1.0
     assert (tmp_path / "map.ply").is_file()
     from splat_core.errors import InputError
     with pytest.raises(InputError, match="engine"):

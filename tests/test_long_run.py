@@ -31,10 +31,10 @@ def test_a_frame_leaves_behind_only_its_keyframe_and_a_few_numbers(tmp_path):
         return sum(s.size_diff for s in tracemalloc.take_snapshot().compare_to(start, "filename"))
     for _ in range(10):
         pipe.step()
-    held_20, keyframes_20 = held(), len(pipe.slam.keyframes)
+    held_20, keyframes_20 = held(), len(pipe.engine.slam.keyframes)
     for _ in range(20):
         pipe.step()
-    held_40, keyframes_40 = held(), len(pipe.slam.keyframes)
+    held_40, keyframes_40 = held(), len(pipe.engine.slam.keyframes)
     tracemalloc.stop()
     assert keyframes_40 - keyframes_20 == 4
     per_frame = (held_40 - held_20 - 4 * 80 * 60 * 5) / 20

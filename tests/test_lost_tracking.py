@@ -138,8 +138,8 @@ def test_lost_frames_are_marked_in_the_trajectory_metrics_and_checkpoint(tmp_pat
     for k in lost:
         s = (k - a) / (b - a)
         assert np.allclose(c2w[k][:3, 3], (1 - s) * c2w[a][:3, 3] + s * c2w[b][:3, 3], atol=1e-6)
-    meta = json.loads((out / "checkpoint" / "meta.json").read_text())
-    assert sorted(int(k) for k in json.loads(meta["lost_tracking"])["lost"]) == lost
+    state = np.load(out / "checkpoint" / "state.npz")
+    assert sorted(int(k) for k in json.loads(str(state["lost_state"]))["lost"]) == lost
     assert after_recovery(pipe, errors).max() < 0.10
 
 
@@ -161,7 +161,7 @@ def test_resume_keeps_the_lost_frames(tmp_path):
     resumed = Pipeline(src, config, out, device="cpu", resume=True)
     resumed.warn = lambda message: None
     assert resumed.lost == first.lost
-    assert resumed.slam.lost_tracking.state() == first.slam.lost_tracking.state()
+    assert resumed.engine.slam.lost_tracking.state() == first.engine.slam.lost_tracking.state()
     while resumed.step() is not None:
         pass
     assert resumed.lost == whole.lost

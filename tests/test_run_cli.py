@@ -67,7 +67,7 @@ def test_resume_equals_an_uninterrupted_run(capture, pixels, memory_mb):
     killed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed")
     for _ in range(5):                     # checkpoint written after frame 3; frames 4-5 are lost
         killed.step()
-    store = killed.slam.keyframes
+    store = killed.engine.slam.keyframes
     assert len(store) >= 1 and store.resident_bytes() == (memory_mb > 1) * len(store) * store.record_bytes
     del killed
     resumed = Pipeline(open_input(capture / "cap"), cfg, capture / "resumed", resume=True)

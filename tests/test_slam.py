@@ -19,8 +19,8 @@ def test_slam_on_a_synthetic_sequence_tracks_to_under_a_centimetre():
     while pipe.step() is not None:
         pass
     assert pipe.ate_cm() < 1.0
-    assert len(pipe.slam.keyframes) == 3          # frames 0, 4, 6 (second to last)
-    assert len(pipe.slam.map) > 70000
+    assert len(pipe.engine.slam.keyframes) == 3          # frames 0, 4, 6 (second to last)
+    assert len(pipe.engine.slam.map) > 70000
 
 
 @pytest.mark.cuda
@@ -36,5 +36,5 @@ def test_slam_on_cuda_tracks_like_the_cpu():
                     device="cuda")
     while pipe.step() is not None:
         pass
-    assert pipe.slam.map.device.type == "cuda"
+    assert pipe.engine.slam.map.device.type == "cuda"
     assert pipe.ate_cm() < 1.0

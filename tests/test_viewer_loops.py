@@ -13,6 +13,7 @@ from app.snapshot import KeyframeView, MapSnapshot
 from app.viewer.loops import loop_line
 from app.worker import SlamWorker
 from splat_core.camera import invert_pose
+from splat_core.loop.records import LoopRecord
 
 from helpers.runs import make_run
 from helpers.viewer import FakePipeline, apply_snapshot, blob_map, wait_until
@@ -21,9 +22,9 @@ THUMB = np.zeros((4, 4, 3), np.uint8)
 
 
 def record(k=(0, 2), frames=(0, 4), applied=True, cm=5.0, deg=0.25, disagreement=5.2):
-    return dict(keyframes=list(k), frames=list(frames), inliers=40, applied=applied,
-                correction_cm=cm if applied else 0.0, correction_deg=deg if applied else 0.0,
-                disagreement_cm=disagreement, disagreement_deg=0.3, seconds=0.4)
+    return LoopRecord(keyframes=tuple(k), frames=tuple(frames), inliers=40, applied=applied,
+                      correction_cm=cm if applied else 0.0, correction_deg=deg if applied else 0.0,
+                      disagreement_cm=disagreement, disagreement_deg=0.3, seconds=0.4)
 
 
 def c2w_at(x, y=0.0):
@@ -143,7 +144,7 @@ def test_worker_snapshots_carry_loops_and_corrected_keyframes(server):
     try:
         worker.start()     # the keyframe at frame 2 is published at frame 2, moved by the loop at frame 4
         snap = worker.wait_for(lambda s: s is not None and s.state == "finished", 20)
-        assert len(snap.loops) == 1 and snap.loops[0]["frames"] == [0, 4]
+        assert len(snap.loops) == 1 and snap.loops[0].frames == (0, 4)
         assert np.isclose(snap.keyframes[1].c2w[1, 3], 0.05) and np.isclose(snap.keyframes[2].c2w[1, 3], 0.05)
         assert np.array_equal(snap.keyframes[1].thumbnail, worker._keyframe_views[2][1].thumbnail)
         wait_until(lambda: app.applied is not None and app.applied.state == "finished", 20, what="run end")
@@ -164,10 +165,11 @@ def test_browse_mode_reads_the_loops_of_metrics_json(tmp_path):
     run = make_run(tmp_path)
     assert load_run(run).loops is None                        # no metrics.json: nothing said
     (run / "metrics.json").write_text(json.dumps({"ate_rmse_cm": 1.5, "loops_closed": 2,
-                                                  "loops": [record(), record(k=(3, 17), frames=(60, 340),
-                                                                             applied=False, disagreement=0.4)]}))
+                                                  "loops": [record().to_dict(), record(
+                                                      k=(3, 17), frames=(60, 340), applied=False,
+                                                      disagreement=0.4).to_dict()]}))
     snap = load_run(run)
-    assert len(snap.loops) == 2
+    assert snap.loops == (record(), record(k=(3, 17), frames=(60, 340), applied=False, disagreement=0.4))
     text = status_markdown(snap)
     assert "keyframes: 0 · loops: 2" in text
     assert "loop closed: keyframe 3 <-> 17 (frames #60 <-> #340), no correction applied" in text

@@ -52,11 +52,11 @@ def _run(args, run) -> int:
             post["skipped"] = len(pipe.skipped)
         for loop in r.loops:
             if not args.quiet:
-                bar.write(f"loop closed: keyframe {loop['keyframes'][0]} <-> {loop['keyframes'][1]} (frames "
-                          f"{loop['frames'][0]} <-> {loop['frames'][1]}), correction {loop['correction_cm']:.1f} cm",
+                bar.write(f"loop closed: keyframe {loop.keyframes[0]} <-> {loop.keyframes[1]} (frames "
+                          f"{loop.frames[0]} <-> {loop.frames[1]}), correction {loop.correction_cm:.1f} cm",
                           file=sys.stderr)
-        if pipe.slam.loop_closure is not None:
-            post["loops"] = len(pipe.slam.loop_closure.loops)
+        if (loops := pipe.loops()) is not None:
+            post["loops"] = len(loops)
         if r.lost or pipe.lost:
             post["lost"] = f"{len(pipe.lost)}" + (" (relocalising)" if r.lost else "")
         bar.set_postfix(post, refresh=False)

@@ -5,8 +5,8 @@
     layer.notify(clients, prev, snap)  # a toast on every page for each loop closed since `prev`
     loop_line(record)                # "loop closed: keyframe 12 <-> 87 (frames #240 <-> #1740), correction 4.1 cm"
 
-A loop record is splat_core/loop/closer.py's (MapSnapshot.loops: from the engine's MapVersion.loops
-while SLAM runs, from metrics.json `loops` when browsing a run folder). Its `keyframes` are keyframe
+A loop record is a splat_core.loop.records.LoopRecord (MapSnapshot.loops: the engine's MapVersion.loops
+while SLAM runs, metrics.json `loops` read back when browsing a run folder). Its `keyframes` are keyframe
 positions as the CLI prints them (counted from 0), its `frames` the keyframes' frame numbers; the
 edges are found by frame number, so they join the frustums whatever list the keyframes came from.
 The edges live under /keyframes, so they are hidden with the frustums (a page scrubbed to a
@@ -20,21 +20,23 @@ import threading
 import numpy as np
 import viser
 
+from splat_core.loop.records import LoopRecord
+
 LOOP_COLOR = (0, 200, 200)      # cyan: distinct from the trajectories, keyframes and current camera
 
 
-def loop_line(record: dict) -> str:
+def loop_line(record: LoopRecord) -> str:
     """One loop in words, from the record's own fields; says so when no correction was applied."""
-    k = record.get("keyframes") or ["?", "?"]
-    f = record.get("frames")
+    k = record.keyframes or ("?", "?")
+    f = record.frames
     where = f"keyframe {k[0]} <-> {k[1]}" + (f" (frames #{f[0]} <-> #{f[1]})" if f else "")
-    if record.get("applied", True):
-        cm, deg = record.get("correction_cm"), record.get("correction_deg")
+    if record.applied:
+        cm, deg = record.correction_cm, record.correction_deg
         what = f"correction {cm:.1f} cm" if cm is not None else "correction applied"
         if cm is not None and deg is not None:
             what += f", {deg:.2f}°"
     else:
-        cm = record.get("disagreement_cm")
+        cm = record.disagreement_cm
         what = "no correction applied" + (f" (the poses already agreed within {cm:.1f} cm)" if cm is not None else "")
     return f"loop closed: {where}, {what}"
 
@@ -58,7 +60,7 @@ def loop_segments(loops, keyframes, upto_frame: int | None = None) -> np.ndarray
     centre = {int(kf.frame_index): np.asarray(kf.c2w, np.float64)[:3, 3] for kf in keyframes}
     segs = []
     for record in loops or ():
-        frames = [int(f) for f in record.get("frames", ())]
+        frames = [int(f) for f in record.frames]
         if len(frames) != 2 or not all(f in centre for f in frames):
             continue
         if upto_frame is not None and max(frames) > upto_frame:

@@ -44,5 +44,5 @@ def run_drifting(source, config: Config, loop_closure: bool, bias_m: float, bias
     return dict(loop_closure=loop_closure, frames=len(source), ate_rmse_cm=100 * M.ate_rmse(est, ref),
                 ate_max_cm=100 * float(M.ate_errors(est, ref).max()),
                 map_depth_error_cm=100 * float(np.mean(depth_err)),
-                map_depth_error_median_cm=100 * float(np.mean(depth_median)), loops=list(slam.all_loops()),
+                map_depth_error_median_cm=100 * float(np.mean(depth_median)), loops=[r.to_dict() for r in slam.loops],
                 seconds=seconds, slam=slam)

@@ -50,6 +50,7 @@ import torch
 from ..config import LiveConfig
 from ..frame import Frame
 from ..slam import FrameResult, MapStats, MapVersion, SplaTAM
+from .slam_reads import SlamReads
 
 
 def mapper_stream(device):
@@ -62,7 +63,7 @@ def mapper_stream(device):
     return torch.cuda.stream(torch.cuda.Stream(device))
 
 
-class LiveEngine:
+class LiveEngine(SlamReads):
     def __init__(self, slam: SplaTAM, config: LiveConfig):
         self.slam, self.config = slam, config
         self._cond = threading.Condition()
@@ -83,11 +84,18 @@ class LiveEngine:
         self._poses = threading.Lock()
         self._closing_loop = False
         self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
-        self.loops: list[dict] = []          # closed since the tracker last took them (FrameResult.loops)
-        if slam.loop_closure is not None:
-            slam.loop_closure.apply_lock = self._correction_lock
+        self._settled = self._mapped        # newest frame whose mapper step (loop closure included) is done
+        self._new_loops: list = []           # LoopRecords closed since the tracker last took them (FrameResult.loops)
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
+
+    def load_state(self, arrays: dict, keyframe_file) -> None:
+        """Resume: SplaTAM's state from a checkpoint, every frame in it mapped and published."""
+        if self._thread is not None:
+            raise RuntimeError("load_state: the live engine has started")
+        super().load_state(arrays, keyframe_file)
+        self._handed = self._mapped = self._settled = self._batch_newest = self.slam.frames_tracked - 1
+        self.slam.publish(self._mapped)
 
     def _start(self) -> None:
         if self._thread is None:
@@ -119,7 +127,7 @@ class LiveEngine:
             start = time.perf_counter()
             version, t, w2c, tracked = self._track(frame, w2c_given)
         with self._cond:
-            loops, self.loops = self.loops, []
+            loops, self._new_loops = self._new_loops, []
         # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
         # the time reported as mapping is the time this frame waited for the map.
         result = self.slam.result(frame, t, w2c, tracked, MapStats(), len(version), time.perf_counter() - start,
@@ -162,7 +170,7 @@ class LiveEngine:
     def drain(self) -> None:
         """Wait until every frame handed over is mapped and published."""
         with self._cond:
-            while self._mapped < self._handed and self.error is None:
+            while self._settled < self._handed and self.error is None:
                 self._cond.wait(0.5)
             self._raise()
         self.slam.latest_version()      # CUDA: the caller's stream waits for the mapper's last step
@@ -206,16 +214,26 @@ class LiveEngine:
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
+        # The batch's map is published before loop closure runs: the tracker does not wait while a
+        # loop closes, so it must find this batch's frames in the map (the first frame's above all).
+        self._published(newest)
         # every keyframe of the batch, oldest first: which keyframes are checked for loops does not
         # depend on how many frames the tracker handed over meanwhile
+        closed = []
         for t in [t for t, _, _ in batch if slam.loop_closure is not None and slam.is_keyframe(t)]:
-            loops = self._close_loops(t)
-            if loops:
-                with self._cond:
-                    self.loops.extend(loops)
-        slam.publish(newest)
+            closed += self._close_loops(t)
+        if closed:
+            with self._cond:
+                self._new_loops.extend(closed)
+            self._published(newest)       # the seams re-mapped after the corrections
         self.mapper_steps += 1
         self.mapper_seconds += time.perf_counter() - start
+        with self._cond:
+            self._settled = newest          # its loop closure done too: drain() may return
+            self._cond.notify_all()
+
+    def _published(self, newest: int) -> None:
+        self.slam.publish(newest)
         with self._cond:
             self._mapped = newest
             self._cond.notify_all()
@@ -227,7 +245,7 @@ class LiveEngine:
             self._closing_loop = True
             self._cond.notify_all()
         try:
-            loops = self.slam.close_loops(t)
+            loops = self.slam.close_loops(t, self._correction_lock)
             if loops:
                 with self._poses, self._cond:
                     self._pending = deque((k, f, self.slam.w2cs[k]) for k, f, _ in self._pending)

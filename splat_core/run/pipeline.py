@@ -54,6 +54,10 @@ class SlamRun(Protocol):
     def step(self) -> FrameResult | None: ...
     def finish(self) -> dict: ...
     def map_version(self) -> MapVersion: ...
+    def loops(self) -> tuple | None:
+        """The loops closed so far (LoopRecords, oldest first); None: loop closure is off."""
+        return self.engine.loops()
+
     def keyframes(self) -> list[Keyframe]: ...
     def estimated_c2w(self) -> list[np.ndarray]: ...
     def reference_c2w(self) -> list[np.ndarray | None] | None: ...
@@ -84,7 +88,8 @@ class Pipeline:
         # The preset's resolution on this capture's shape (aspect kept; resolution.py).
         self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
         self.feed = FrameFeed(source, self.intrinsics, config, max_frames=max_frames, stride=stride)
-        self.slam = SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total)
+        self.engine = make_engine(engine, SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total),
+                                  config)
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
@@ -95,8 +100,7 @@ class Pipeline:
         if resume:
             self._resume()
         elif self.folder is not None:
-            self.slam.keyframes.attach(self.folder.keyframe_file)
-        self.engine = make_engine(engine, self.slam, config)
+            self.engine.attach_keyframes(self.folder.keyframe_file)
 
     # ------------------------------------------------------------------ what the feed knows
     out_dir = property(lambda self: self.folder.path if self.folder is not None else None)
@@ -114,8 +118,12 @@ class Pipeline:
     def warn(self, function) -> None:
         self.feed.warn = function
 
+    def loops(self) -> tuple | None:
+        """The loops closed so far (LoopRecords, oldest first); None: loop closure is off."""
+        return self.engine.loops()
+
     def keyframes(self) -> list[Keyframe]:
-        return list(self.slam.keyframes)
+        return self.engine.keyframes()
 
     def map_version(self) -> MapVersion:
         """The newest map that may be read from any thread."""
@@ -186,7 +194,7 @@ class Pipeline:
         return invert_pose(c2w_ref0) @ c2w_ref
 
     def estimated_c2w(self) -> list[np.ndarray]:
-        return [invert_pose(w) for w in self.slam.w2cs]
+        return [invert_pose(w) for w in self.engine.trajectory()]
 
     def has_reference(self) -> bool:
         return any(is_finite_pose(r) for r in self.references)
@@ -203,15 +211,14 @@ class Pipeline:
     # ------------------------------------------------------------------ checkpoints
     def _meta(self) -> dict:
         return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine_name,
-                    cursor=self.cursor, skipped=self.skipped, lost_tracking=self.slam.lost_tracking.state(),
+                    cursor=self.cursor, skipped=self.skipped,
                     records=self.records, references=[None if r is None else np.asarray(r).tolist()
                                                       for r in self.references],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
                     input=input_record(self.source), elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
-        self.engine.drain()           # a consistent state: every tracked frame is in the map
-        self.folder.save_checkpoint(self.slam.state_arrays(), self._meta())
+        self.folder.save_checkpoint(self.engine.state_arrays(), self._meta())
 
     def _resume(self) -> None:
         ckpt = self.folder.load_checkpoint()
@@ -223,26 +230,21 @@ class Pipeline:
             raise InputError(f"{where}: the checkpoint was made with another config")
         if ckpt.meta.get("engine", "sequential") != self.engine_name:
             raise InputError(f"{where}: the checkpoint was made with --engine {ckpt.meta.get('engine')}")
-        self.slam.load_state_arrays(ckpt.arrays, self.folder.keyframe_file)
+        self.engine.load_state(ckpt.arrays, self.folder.keyframe_file)
         self.records = list(ckpt.meta["records"])
         self.feed.load_state(ckpt.meta, len(self.records))
-        if "lost_tracking" in ckpt.meta:
-            self.slam.lost_tracking.load_state(ckpt.meta["lost_tracking"])
         self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
         self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
 
     # ------------------------------------------------------------------ results
     def evaluate(self) -> dict:
         """Render metrics at the estimated poses on frame 0 and every eval_every-th frame."""
-        return evaluate(self.slam, self.records, self.frame, self.config.eval_every)
+        return evaluate(self.engine.render, self.engine.trajectory(), self.records, self.frame, self.config.eval_every)
 
     def metrics(self) -> dict:
         out = summary(self)
         out.update(self.engine.stats())
-        closer = self.slam.loop_closure
-        if closer is not None:
-            out.update(loops_closed=len(closer.loops), loops_rejected=closer.rejected,
-                       loops_rejected_by=dict(closer.rejected_by), loops=list(closer.loops))
+        out.update(self.engine.loop_figures() or {})
         out.update(self.evaluate())
         out["per_frame"] = self.records
         return out
@@ -261,6 +263,6 @@ class Pipeline:
                         f"{r['reason']}; the pose below is not tracked (interpolated between the tracked frames on "
                         "either side, or held at the last tracked pose when the run ended lost)" for r in self.lost}
             self.folder.write_results([r["timestamp"] for r in self.records], self.estimated_c2w(),
-                                      self.slam.map.to_numpy(), self.config.to_dict(), result, comments=comments)
+                                      self.engine.map_arrays(), self.config.to_dict(), result, comments=comments)
             self.save_checkpoint()
         return result

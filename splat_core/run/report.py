@@ -11,7 +11,6 @@ import torch
 
 from .. import metrics as M
 from ..camera import invert_pose, is_finite_pose
-from ..slam import SplaTAM
 
 
 def ate_cm(estimated_c2w, reference_c2w) -> float | None:
@@ -25,17 +24,16 @@ def ate_cm(estimated_c2w, reference_c2w) -> float | None:
     return 100.0 * float(M.ate_rmse(np.array(est), np.array(ref)))
 
 
-def evaluate(slam: SplaTAM, records: list[dict], frame_of, eval_every: int) -> dict:
-    """PSNR, SSIM and depth L1 of the map rendered at the estimated poses of frame 0 and every
-    eval_every-th frame (`frame_of(k)`: processed frame k); lost frames are left out (a guess)."""
+def evaluate(render, w2cs: list, records: list[dict], frame_of, eval_every: int) -> dict:
+    """PSNR, SSIM and depth L1 of the map rendered (`render(w2c)`, engine.render) at the estimated
+    poses `w2cs` of frame 0 and every eval_every-th frame (`frame_of(k)`: processed frame k); lost
+    frames are left out (a guess)."""
     every = max(1, eval_every)
     picks = [k for k in range(len(records)) if (k == 0 or (k + 1) % every == 0) and not records[k].get("lost")]
     psnrs, ssims, depth_l1s = [], [], []
-    g = slam.map.tensors(detach=True)
     for k in picks:
         frame = frame_of(k)
-        with torch.no_grad():
-            out = slam.renderer.render_visible(g, slam.intrinsics, slam.w2cs[k])
+        out = render(w2cs[k])
         color = torch.as_tensor(frame.color, device=out.color.device)
         depth = torch.as_tensor(frame.depth, device=out.depth.device)
         psnrs.append(float(M.psnr(out.color, color)))
@@ -50,7 +48,8 @@ def summary(pipe) -> dict:
     """metrics.json's summary of a Pipeline (without the engine's stats and the render metrics)."""
     from .frame_feed import input_record
 
-    records, slam = pipe.records, pipe.slam
+    records, engine = pipe.records, pipe.engine
+    w2cs = engine.trajectory()
     track = [r["tracking_seconds"] for r in records]
     mapping = [r["mapping_seconds"] for r in records]
     wall = [r["wall_seconds"] for r in records]
@@ -58,7 +57,7 @@ def summary(pipe) -> dict:
         engine=pipe.engine_name, frames=len(records), frames_skipped=len(pipe.skipped),
         skipped=pipe.skipped, frames_lost=len(pipe.lost), lost=pipe.lost,
         frames_without_reference=sum(not is_finite_pose(r) for r in pipe.references) if pipe.has_reference() else 0,
-        num_gaussians=len(slam.map), keyframes=len(slam.keyframes),
+        num_gaussians=engine.num_gaussians(), keyframes=len(engine.keyframes()),
         ate_rmse_cm=pipe.ate_cm(),
         tracking_seconds_per_frame=float(np.mean(track)) if track else None,
         mapping_seconds_per_frame=float(np.mean(mapping)) if mapping else None,
@@ -72,7 +71,7 @@ def summary(pipe) -> dict:
     )
     refs = pipe.reference_c2w()
     if refs is not None:
-        pairs = [(w, invert_pose(r)) for w, r in zip(slam.w2cs, refs) if r is not None]
+        pairs = [(w, invert_pose(r)) for w, r in zip(w2cs, refs) if r is not None]
         if len(pairs) >= 2:
             est, ref = zip(*pairs)
             out["ate_mean_legacy_cm"] = 100.0 * float(M.ate_mean_legacy(np.array(est), np.array(ref)))
