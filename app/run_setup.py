@@ -161,12 +161,12 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
     """Settings and input of a run (`input_path` None or "synthetic": the synthetic scene; nerfcapture://: the
     live stream, recorded to OUT/capture and ended after `idle_timeout` seconds without a frame)."""
     from splat_core.run import open_input, resolve_device
+    from splat_core.run.run_folder import RunFolder
 
     if out is not None:
         out = Path(out)
         if out.exists() and not out.is_dir():
             raise InputError(f"{out}: --out must be a folder")
-        from splat_core.run.run_folder import RunFolder
         # a folder with a checkpoint or a finished run's metrics is taken; one killed before its
         # first checkpoint (only checkpoint/keyframes.bin) holds nothing worth keeping
         folder = RunFolder(out)
@@ -181,7 +181,7 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
         if min_confidence is not None:
             raise InputError(f"--min-confidence: {input_path or 'the synthetic scene'} has no LiDAR confidence maps "
                              "(it applies to Record3D and Stray Scanner captures)")
-        options = dict(capture_dir=out / "capture", idle_timeout=idle_timeout) if input_path else {}
+        options = dict(capture_dir=RunFolder(out).capture_dir, idle_timeout=idle_timeout) if input_path else {}
         source = open_input(input_path, **options)
     else:
         options = {} if cfg.min_confidence is None else dict(min_confidence=cfg.min_confidence)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .camera import Intrinsics
+from .intrinsics import Intrinsics
 
 
 @dataclass

@@ -30,7 +30,6 @@ from .config import KeyframeConfig
 from .errors import InputError
 
 DEPTH_LEVELS = 65535
-KEYFRAME_FILE = "keyframes.bin"      # in the run's checkpoint folder
 
 
 def encode(color: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
@@ -279,12 +278,13 @@ class KeyframeStore:
             self._spill()
 
 
-def read_keyframes(checkpoint_dir, arrays: dict, intrinsics: Intrinsics) -> list[Keyframe]:
-    """The keyframes of a finished run's checkpoint (for browsing and refinement), read into memory."""
+def read_keyframes(keyframe_file, arrays: dict, intrinsics: Intrinsics) -> list[Keyframe]:
+    """The keyframes of a finished run's checkpoint (for browsing and refinement), read into memory
+    (their images from `keyframe_file`, the run folder's checkpoint/keyframes.bin)."""
     store = KeyframeStore(KeyframeConfig(memory_mb=float("inf")), intrinsics)
     if len(arrays.get("kf_index", ())) == 0:
         return []
-    store.load_arrays(arrays, None if "kf_color" in arrays else Path(checkpoint_dir) / KEYFRAME_FILE, readonly=True)
+    store.load_arrays(arrays, None if "kf_color" in arrays else Path(keyframe_file), readonly=True)
     items = list(store.items)
     store._close()
     return items

@@ -10,5 +10,7 @@
     report.py     DIR/index.html: the table, a trajectory plot from above per capture, links to exports
 
 Only `cluster.py` and `driver.py` import dask; the rest is plain Python so the summary and the
-report can be tested without a cluster.
+report can be tested without a cluster. None of it imports torch (the runs are child processes):
+run-folder paths and reading come from splat_core.run.run_folder.RunFolder, atomic writes from
+splat_core.io.atomic.
 """

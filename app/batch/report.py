@@ -11,12 +11,12 @@ first pose on the estimate's), not aligned, as the run folder keeps it.
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
 from splat_core.io.atomic import write_text_atomic
+from splat_core.run.run_folder import RunFolder
 
 from . import state
 from .summary import COLUMNS, HEADERS, _cell, counts
@@ -25,12 +25,8 @@ PLOT_W, PLOT_H, PAD = 320, 240, 14
 
 
 def estimate_xz(run_dir: Path) -> np.ndarray | None:
-    path = run_dir / "trajectory.txt"
-    if not path.is_file():
-        return None
-    from splat_core.io.trajectory import read_tum_trajectory
     try:
-        _, c2w = read_tum_trajectory(path)
+        _, c2w = RunFolder(run_dir).read_trajectory()
     except Exception:
         return None
     c2w = np.asarray(c2w)
@@ -40,10 +36,7 @@ def estimate_xz(run_dir: Path) -> np.ndarray | None:
 def reference_xz(run_dir: Path) -> np.ndarray | None:
     """The reference camera centres in the run's world (checkpoint/meta.json 'references': the
     capture's c2w per frame, made relative to the first as the pipeline does for ATE)."""
-    try:
-        refs = json.loads((run_dir / "checkpoint" / "meta.json").read_text()).get("references") or []
-    except (OSError, ValueError):
-        return None
+    refs = (RunFolder(run_dir).checkpoint_meta() or {}).get("references") or []
     if not refs or refs[0] is None:
         return None
     first_inv = np.linalg.inv(np.asarray(refs[0], dtype=np.float64))
@@ -88,8 +81,9 @@ def trajectory_svg(est: np.ndarray | None, ref: np.ndarray | None) -> str:
 
 
 def _links(run_dir: Path, name: str) -> str:
-    files = [f for f in ("map.ply", "map_refined.ply", "trajectory.txt", "metrics.json", "batch.log")
-             if (run_dir / f).exists()]
+    folder = RunFolder(run_dir)
+    files = [p.name for p in (folder.map, folder.refined_map, folder.trajectory, folder.metrics,
+                              run_dir / state.LOG_FILE) if p.exists()]
     exports = (state.read_status(run_dir).get("exports") or {})
     links = [f'<a href="{html.escape(name)}/{html.escape(f)}">{html.escape(f)}</a>' for f in files]
     links += [f'<a href="{html.escape(name)}/{html.escape(p)}">{html.escape(fmt)}</a>'

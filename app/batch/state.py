@@ -4,9 +4,9 @@
      "error": one line or null, "attempts": task starts, "worker": address, "pid": worker process id,
      "refine": iterations done or null, "exports": {format: path relative to the run folder}, ...}
 
-A run folder with metrics.json is a finished run (whoever made it); one with a checkpoint and no
-metrics.json was killed and is resumed. A capture recorded as failed is not rerun unless the batch
-is given --retry-failed.
+A run folder (splat_core.run.run_folder.RunFolder, which names its files) with metrics.json is a
+finished run (whoever made it); one with a checkpoint and no metrics.json was killed and is
+resumed. A capture recorded as failed is not rerun unless the batch is given --retry-failed.
 """
 
 from __future__ import annotations
@@ -14,27 +14,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+from splat_core.io.atomic import write_text_atomic
+from splat_core.run.run_folder import RunFolder
 
-
-def write_text_atomic(path, text: str) -> None:
-    """Write to a temporary name beside `path`, then rename (as splat_core.io.atomic does; that
-    package imports torch, seconds per Dask worker process that only writes this small file)."""
-    import os
-    import tempfile
-
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-
+# The batch's own files in a run folder (RunFolder names the run's).
 STATUS_FILE = "batch_status.json"
+LOG_FILE = "batch.log"          # the output of the capture's `splatam` steps
 EXPORT_DIR = "export"
 # Where `splatam export --format F` writes inside the run folder: the map formats get a file
 # named after their suffix; the hand-off formats (COLMAP model, nerfstudio dataset) a folder; a
@@ -77,24 +62,22 @@ def update_status(run_dir, **fields) -> dict:
 
 
 def read_metrics(run_dir) -> dict | None:
-    try:
-        return json.loads((Path(run_dir) / "metrics.json").read_text())
-    except (OSError, ValueError):
-        return None
+    return RunFolder(run_dir).read_metrics()
 
 
 def finished(run_dir) -> bool:
-    return (Path(run_dir) / "metrics.json").is_file()
+    return RunFolder(run_dir).is_finished()
 
 
 def has_checkpoint(run_dir) -> bool:
-    """A killed run's checkpoint (splat_core.io.checkpoint's two files), which `--resume` continues."""
-    return all((Path(run_dir) / "checkpoint" / f).is_file() for f in ("state.npz", "meta.json"))
+    """A killed run's checkpoint, which `--resume` continues."""
+    return RunFolder(run_dir).has_checkpoint()
 
 
 def refine_done(run_dir, iterations: int) -> bool:
-    m = read_metrics(run_dir) or {}
-    return (m.get("refine") or {}).get("iterations") == iterations and (Path(run_dir) / "map_refined.ply").is_file()
+    folder = RunFolder(run_dir)
+    m = folder.read_metrics() or {}
+    return (m.get("refine") or {}).get("iterations") == iterations and folder.refined_map.is_file()
 
 
 def exports_missing(run_dir, formats: list[str], status: dict | None = None) -> list[str]:

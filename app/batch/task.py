@@ -18,6 +18,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from splat_core.run.run_folder import RunFolder
+
 from . import state
 from .child import PARENT_ENV
 
@@ -55,7 +57,7 @@ def run_command(capture, run_dir: Path, opts: RunOptions, resume: bool) -> list[
 
 def export_command(run_dir: Path, fmt: str, refined: bool) -> list[str]:
     from app.exports import FORMATS
-    source = run_dir / "map_refined.ply" if refined and fmt in FORMATS else run_dir
+    source = RunFolder(run_dir).refined_map if refined and fmt in FORMATS else run_dir
     return ["export", str(source), "--format", fmt, "--out", str(run_dir / state.export_output(fmt))]
 
 
@@ -87,7 +89,7 @@ class Child:
     """Runs `splatam <args>` steps of one capture, logging to RUN/batch.log."""
 
     def __init__(self, run_dir: Path, opts: RunOptions, worker_name=None):
-        self.log = run_dir / "batch.log"
+        self.log = run_dir / state.LOG_FILE
         self.env = dict(os.environ, PYTHONUNBUFFERED="1", **{PARENT_ENV: str(os.getpid())})
         try:    # what Dask's nanny sets for its worker (1 BLAS thread, malloc trimming) is not for the run
             import dask

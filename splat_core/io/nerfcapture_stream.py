@@ -17,8 +17,9 @@ first frame's (fl_x fl_y cx cy at the colour resolution); poses are converted fr
 OpenCV camera axes, in ARKit's gravity-up world, as the offline reader does.
 
 The stream ends after `max_frames` received, on `stop()`/`close()` (Ctrl-C), or after
-`idle_timeout` seconds without a frame (None: never). `live = True` tells the Pipeline to pull
-with `next_frame()` instead of indexing; `source[i]` reads received frame i back from the folder.
+`idle_timeout` seconds without a frame (None: never). It is a LiveSource (source.py): the
+Pipeline pulls with `next_frame()` instead of indexing, `received` / `dropped` count the frames,
+and `source[i]` reads received frame i back from the folder.
 """
 
 from __future__ import annotations
@@ -29,14 +30,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import Intrinsics, c2w_opengl_to_opencv
+from ..camera import c2w_opengl_to_opencv
 from ..errors import InputError
 from ..frame import Frame
+from ..intrinsics import Intrinsics
 from .camera_files import make_intrinsics
 from .images import color_to_float, raw_depth_to_metres, read_color, read_depth_png
 from .nerfcapture_dds import DOMAIN_ID, TOPIC, dds_config_label, decode
 from .nerfcapture_record import UNITS_PER_METRE, CaptureRecorder
-from .source import FrameSource
+from .source import LiveSource
 
 URL = "nerfcapture://"
 POLL_S = 0.2
@@ -47,9 +49,8 @@ def waiting_message() -> str:
             "in the app choose Online mode, wait for '1 Connection(s)', then tap Send")
 
 
-class NeRFCaptureStream(FrameSource):
+class NeRFCaptureStream(LiveSource):
     format_name = "nerfcapture-stream"
-    live = True
 
     def __init__(self, capture_dir, *, idle_timeout: float | None = 30.0, max_frames: int | None = None,
                  receiver=None, url: str = URL):
@@ -118,7 +119,7 @@ class NeRFCaptureStream(FrameSource):
             self._ended.set()
             self._cond.notify_all()
 
-    # ------------------------------------------------------------------ live use
+    # ------------------------------------------------------------------ LiveSource
     def next_frame(self, timeout: float | None = None) -> Frame | None:
         """The newest frame not yet handed out; None when the stream has ended (or after
         `timeout` seconds without one). Frames SLAM skipped stay in the capture folder."""
@@ -150,13 +151,8 @@ class NeRFCaptureStream(FrameSource):
         if self._thread.is_alive() and self._thread is not threading.current_thread():
             self._thread.join(10.0)
 
-    @property
-    def dropped(self) -> int:
-        return len(self._meta) - self.delivered
-
     def stats(self) -> dict:
-        return dict(received=len(self._meta), dropped=self.dropped, rejected=self.rejected,
-                    stream_end=self.end_reason, capture=str(self.path))
+        return dict(super().stats(), rejected=self.rejected, stream_end=self.end_reason, capture=str(self.path))
 
     def no_frame_message(self) -> str:
         why = f"{self.rejected} frames rejected, last: {self.last_rejection}; " if self.rejected else ""

@@ -1,4 +1,7 @@
-"""FrameSource: what every capture reader (and the synthetic scene) provides."""
+"""The input contract: FrameSource (what every capture reader and the synthetic scene provides)
+and LiveSource (frames that arrive over time, the newest handed to SLAM, the others counted).
+
+Imports no torch: the outer ring (run folder, batch, a later `--realtime` player) uses it."""
 
 from __future__ import annotations
 
@@ -8,8 +11,8 @@ from typing import Iterator
 
 import numpy as np
 
-from ..camera import Intrinsics
 from ..frame import Frame, resize_frame
+from ..intrinsics import Intrinsics
 
 
 class FrameSource(ABC):
@@ -23,7 +26,7 @@ class FrameSource(ABC):
     format_name: str = "unknown"
     path: Path | None = None
     registered: bool = True     # colour and depth pixels correspond (False: the camera file says not)
-    live: bool = False          # frames arrive over time: pulled with next_frame(), len() grows (nerfcapture_stream.py)
+    live: bool = False          # True for a LiveSource: pulled with next_frame(), len() grows
 
     @abstractmethod
     def __len__(self) -> int: ...
@@ -63,3 +66,41 @@ class FrameSource(ABC):
 
     def describe(self) -> str:
         return f"{self.format_name} capture at {self.path} ({len(self)} frames)"
+
+
+class LiveSource(FrameSource):
+    """Frames that arrive over time: a phone's stream (nerfcapture_stream.py), or a capture
+    played back at its own pace.
+
+    The consumer pulls with `next_frame()`, which hands over the newest frame not yet handed
+    out, never a queue: a frame replaced by a newer one before it was pulled is never handed
+    out, so a slow consumer always gets the freshest frame instead of falling further behind.
+
+    `received` counts the frames that arrived; each is kept, `len(self)` of them, and readable
+    as `source[i]` in arrival order (frame.index is that i). `delivered` counts those handed
+    out (a subclass's next_frame() adds to it); `dropped` = received - delivered: the frames
+    not handed out so far (the newest one, until it is pulled, included).
+    """
+
+    live = True
+    delivered: int = 0
+
+    @abstractmethod
+    def next_frame(self, timeout: float | None = None) -> Frame | None:
+        """The newest frame not yet handed out; None once the source has ended (or after
+        `timeout` seconds without a new one: the source goes on)."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Ask the source to end (safe from a signal handler: sets a flag, never blocks)."""
+
+    @property
+    def received(self) -> int:
+        return len(self)
+
+    @property
+    def dropped(self) -> int:
+        return self.received - self.delivered
+
+    def stats(self) -> dict:
+        return dict(received=self.received, dropped=self.dropped)

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..camera import rotmat_to_quat
 from ..errors import InputError
 from .atomic import write_text_atomic
 
@@ -68,6 +67,7 @@ def quats_to_rotmats(q: np.ndarray) -> np.ndarray:
 
 
 def format_tum_line(t: float, c2w: np.ndarray) -> str:
+    from ..camera import rotmat_to_quat     # (camera.py imports torch; reading a trajectory does not need it)
     q = rotmat_to_quat(np.asarray(c2w)[:3, :3])  # (w, x, y, z)
     tx, ty, tz = np.asarray(c2w)[:3, 3]
     return (f"{t:.6f} {tx:.9f} {ty:.9f} {tz:.9f} "

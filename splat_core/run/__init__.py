@@ -4,14 +4,33 @@
     engines.py      one interface for the sequential engine (SplaTAM.process) and the live one (live.py)
     live.py         LiveEngine: tracking in the caller's thread, mapping in a mapper thread
     frame_feed.py   opening the input, frame indices, bad frames skipped
-    run_folder.py   RunFolder: the run folder's files, written once, read strictly or tolerantly
+    run_folder.py   RunFolder: the run folder's files, written once, read strictly or tolerantly (no torch)
     report.py       ATE, render metrics and metrics.json's figures
     resolution.py   what a preset's working resolution means on a capture's shape
+
+The names below are imported on first use, so `splat_core.run.run_folder` imports without torch.
 """
 
-from .engines import ENGINES
-from .frame_feed import open_input, resolve_device
-from .pipeline import Pipeline
-from .run_folder import RunFolder
+from importlib import import_module
+from typing import TYPE_CHECKING
 
-__all__ = ["ENGINES", "Pipeline", "RunFolder", "open_input", "resolve_device"]
+if TYPE_CHECKING:       # what the names are (for readers and type checkers); imported on first use below
+    from .engines import ENGINES
+    from .frame_feed import open_input, resolve_device
+    from .pipeline import Pipeline
+    from .run_folder import RunFolder
+
+_HOMES = {"ENGINES": "engines", "Pipeline": "pipeline", "RunFolder": "run_folder",
+          "open_input": "frame_feed", "resolve_device": "frame_feed"}
+
+__all__ = sorted(_HOMES)
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(import_module(f".{_HOMES[name]}", __name__), name)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_HOMES))

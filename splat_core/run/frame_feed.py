@@ -3,8 +3,8 @@
     feed = FrameFeed(open_input("capture/"), intrinsics, config, max_frames=100, stride=2)
     frame = feed.next(started=True)     # the next usable frame at the working resolution, or None
 
-A capture is read by index (`indices`: every stride-th frame, at most max_frames); a live stream
-(`source.live`, e.g. nerfcapture://) is pulled with next_frame() and `indices` grows as frames
+A capture is read by index (`indices`: every stride-th frame, at most max_frames); a LiveSource
+(io/source.py, e.g. nerfcapture://) is pulled with next_frame() and `indices` grows as frames
 arrive. A bad frame is skipped with a one-line warning; a capture whose first
 MAX_LEADING_BAD_FRAMES frames are all unusable is refused as a whole.
 """
@@ -22,7 +22,7 @@ from ..camera import Intrinsics
 from ..config import Config
 from ..errors import InputError
 from ..frame import Frame, resize_frame
-from ..io.source import FrameSource
+from ..io.source import FrameSource, LiveSource
 
 MAX_LEADING_BAD_FRAMES = 10
 
@@ -77,7 +77,7 @@ def input_record(source: FrameSource) -> dict | None:
     folder it was recorded to, whose format is detected); None for the synthetic scene."""
     if getattr(source, "path", None) is None:
         return None
-    live = getattr(source, "live", False)
+    live = isinstance(source, LiveSource)
     return dict(path=str(Path(source.path).resolve()), format=None if live else source.format_name)
 
 
@@ -89,7 +89,7 @@ class FrameFeed:
     def __init__(self, source: FrameSource, intrinsics: Intrinsics, config: Config, *,
                  max_frames: int | None = None, stride: int = 1):
         self.source, self.intrinsics, self.max_depth = source, intrinsics, config.max_depth
-        self.streaming = bool(getattr(source, "live", False))
+        self.streaming = isinstance(source, LiveSource)
         if self.streaming:
             self.indices: list[int] = []
             self.total = max_frames or None

@@ -4,31 +4,39 @@
     RUN/map.ply             the map, 3DGS PLY
     RUN/metrics.json        accuracy, speed, per-frame records
     RUN/config.yaml         the resolved config
-    RUN/checkpoint/         state.npz + meta.json (io/checkpoint.py), keyframes.bin (keyframes.py)
+    RUN/checkpoint/         state.npz + meta.json (io/checkpoint.py), keyframes.bin (its records: keyframes.py)
     RUN/map_refined.ply     `splatam refine`'s map (its section in metrics.json: "refine")
     RUN/refine_checkpoint/  an unfinished refinement
+    RUN/capture/            a live stream's frames, recorded as they arrive
 
 The pipeline writes it (`write_results`, `save_checkpoint`); refine reads it strictly
 (`require_finished`: everything must be there), browsing and rendering tolerantly (each reader
 returns None or nothing for a file that is missing or unreadable). Every write is atomic.
+
+Imports no torch (numpy and yaml only): `splatam batch`'s workers and summaries use it too; the
+readers that build engine objects (keyframes) import the engine when called.
 """
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
 
-from ..camera import Intrinsics
 from ..errors import InputError
+from ..intrinsics import Intrinsics
 from ..io import checkpoint as ckpt_io
 from ..io.atomic import write_text_atomic
-from ..keyframes import KEYFRAME_FILE, Keyframe, read_keyframes
+
+if TYPE_CHECKING:
+    from ..keyframes import Keyframe
 
 TRAJECTORY, MAP, METRICS, CONFIG, CHECKPOINT = "trajectory.txt", "map.ply", "metrics.json", "config.yaml", "checkpoint"
-REFINED_MAP, REFINE_CHECKPOINT = "map_refined.ply", "refine_checkpoint"
+REFINED_MAP, REFINE_CHECKPOINT, CAPTURE = "map_refined.ply", "refine_checkpoint", "capture"
+KEYFRAME_FILE = "keyframes.bin"      # in CHECKPOINT
 
 
 class RunFolder:
@@ -70,6 +78,10 @@ class RunFolder:
     @property
     def refine_checkpoint_dir(self) -> Path:
         return self.path / REFINE_CHECKPOINT
+
+    @property
+    def capture_dir(self) -> Path:
+        return self.path / CAPTURE
 
     # ------------------------------------------------------------------ writing
     def write_results(self, timestamps, c2ws, map_arrays: dict, config_dict: dict, metrics: dict,
@@ -114,6 +126,14 @@ class RunFolder:
             return self.load_checkpoint() if self.has_checkpoint() else None
         except InputError:
             return None
+
+    def checkpoint_meta(self) -> dict | None:
+        """The checkpoint's meta.json alone (no arrays read), or None."""
+        try:
+            data = json.loads((self.checkpoint_dir / ckpt_io.META).read_text())
+        except (OSError, ValueError):
+            return None
+        return data if isinstance(data, dict) else None
 
     def read_metrics(self) -> dict | None:
         try:
@@ -160,7 +180,8 @@ class RunFolder:
         """The checkpoint's keyframes (poses; images read from keyframes.bin on demand)."""
         if len(ckpt.arrays.get("kf_index", ())) == 0:
             return []
-        return read_keyframes(self.checkpoint_dir, ckpt.arrays, intrinsics)
+        from ..keyframes import read_keyframes
+        return read_keyframes(self.keyframe_file, ckpt.arrays, intrinsics)
 
     # ------------------------------------------------------------------ strict reader
     def require_finished(self) -> ckpt_io.Checkpoint:
