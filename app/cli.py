@@ -27,6 +27,8 @@ SUBCOMMANDS = {
     "render": ("app.commands.render_path", "render images of a map along a camera trajectory"),
     "refine": ("app.commands.refine", "refine a finished run's map over all keyframes at the capture's resolution"),
     "batch": ("app.commands.batch", "run many captures on a local or multi-node Dask cluster, with a summary and report"),
+    "config": ("app.commands.config", "show the resolved settings of a preset, a '+'-composition or a YAML file "
+               "(splatam config show [NAME])"),
 }
 
 

@@ -19,6 +19,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+from splat_core.config import describe_default_presets
 from splat_core.errors import InputError
 
 STREAM = "nerfcapture://"
@@ -52,8 +53,8 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
     """The options `splatam run` and `splatam-viewer` share."""
     p.add_argument("--format", default=None, help="capture format (default: detected)")
     p.add_argument("--config", default=None, help="budget preset (cpu, cpu_dense, gpu, splatam, splatam_s), paper preset "
-                   "(splatam_tum, ...), names joined by '+' or a YAML file (default: cpu on a CPU, gpu on a GPU); "
-                   "the detected format's layer applies by itself")
+                   f"(splatam_tum, ...), names joined by '+' or a YAML file (default: {describe_default_presets()}); "
+                   "the detected format's layer applies by itself; every key: docs/settings.md")
     p.add_argument("--resolution", default=None, metavar="WxH|L|native",
                    help="working resolution: WxH pixels in the capture's aspect ratio (portrait stays portrait), "
                    "a long side L, or native (default: the preset's)")
@@ -69,11 +70,6 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
                    f"while a mapper thread maps (faster, not bitwise reproducible); default {engine_default}")
     p.add_argument("--loop-closure", default=None, choices=["on", "off"],
                    help="close loops online (docs/loop-closure.md; default: the preset's: on in cpu and gpu, off in the paper presets)")
-
-
-def default_config_name(device) -> str:
-    """The budget `--device auto` gives: `gpu` on CUDA (configs/gpu.yaml), `cpu` elsewhere."""
-    return "gpu" if device.type == "cuda" else "cpu"
 
 
 def input_format(input_path, format: str | None) -> str:
@@ -96,10 +92,10 @@ def config_summary(config) -> str:
 
 
 def load_run_config(spec: str | None, format_name: str, device, resolution: str | None = None,
-                    min_confidence: int | None = None, loop_closure: str | None = None):
-    """The budget (`spec`, or the device's default) over `format_name`'s layer, then the CLI's
-    --resolution and --min-confidence."""
-    from splat_core.config import load_config
+                    min_confidence: int | None = None, loop_closure: str | None = None, engine: str = "sequential"):
+    """The budget (`spec`, or the default preset of `device` and `engine`) over `format_name`'s layer,
+    then the CLI's --resolution and --min-confidence."""
+    from splat_core.config import default_preset, load_config
     from splat_core.run.resolution import parse_resolution
 
     overrides = {}
@@ -109,7 +105,7 @@ def load_run_config(spec: str | None, format_name: str, device, resolution: str 
         overrides["min_confidence"] = min_confidence
     if loop_closure is not None:
         overrides["loop_closure"] = {"enabled": loop_closure == "on"}
-    return load_config(spec or default_config_name(device), overrides, format=format_name)
+    return load_config(spec or default_preset(device, engine), overrides, format=format_name)
 
 
 @dataclass
@@ -176,7 +172,7 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
         input_path = None
     dev = resolve_device(device)
     format_name = input_format(input_path, format)
-    cfg = load_run_config(config, format_name, dev, resolution, min_confidence, loop_closure)
+    cfg = load_run_config(config, format_name, dev, resolution, min_confidence, loop_closure, engine)
     if input_path is None or str(input_path).startswith(STREAM):
         if min_confidence is not None:
             raise InputError(f"--min-confidence: {input_path or 'the synthetic scene'} has no LiDAR confidence maps "

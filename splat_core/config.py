@@ -12,16 +12,22 @@ resolution and window. Format layers (configs/formats/<format>.yaml, one per cap
 applied by themselves for the detected format) may set only FORMAT_KEYS: depth range, confidence,
 depth upsampling, keyframe rules. The layer is applied first, so a budget's iteration counts hold
 under every format. Paper presets (configs/paper/) are the paper's per-dataset combinations.
+
+Every value a file gives is checked against its field's type (config_schema.py; the fields and their
+documentation: config_sections.py, docs/settings.md). DEFAULT_PRESETS is the one place that says
+which preset a run uses without --config, per device and engine.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
+from typing import get_args
 
 import yaml
 
+from .config_schema import check, field_types, section, setting
 from .errors import InputError
 
 # configs/ in a source checkout; shipped as splat_core/presets/ in an installed wheel.
@@ -30,31 +36,70 @@ CONFIG_DIR = next((d for d in (Path(__file__).resolve().parent / "presets",
                   Path(__file__).resolve().parent.parent / "configs")
 
 
-from .config_sections import (ALIGN_BACKENDS, AlignConfig, DensifyConfig, KeyframeConfig, LiveConfig,  # noqa: F401
-                              LoopClosureConfig, LostTrackingConfig, MappingConfig, TrackingConfig)
+from .config_sections import (ALIGN_BACKENDS, KEYFRAME_SELECTIONS, TRACKING_PIXELS, AlignConfig,  # noqa: F401
+                              DensifyConfig, KeyframeConfig, LiveConfig, LoopClosureConfig, LostTrackingConfig,
+                              MappingConfig, TrackingConfig)
+
+# The preset a run uses without --config, by device (torch.device.type) and engine: `splatam run`,
+# `splatam-viewer`, `splatam batch` (through run), `splatam info` and `splatam config show` read it here.
+DEFAULT_PRESETS = {("cpu", "sequential"): "cpu", ("cpu", "live"): "cpu",
+                   ("cuda", "sequential"): "gpu", ("cuda", "live"): "gpu"}
+DEVICE_WORDS = {"cpu": "a CPU", "cuda": "an NVIDIA GPU"}
+
+
+def default_preset(device, engine: str = "sequential") -> str:
+    """The preset for `device` (a torch.device or its type: cpu, cuda) and `engine` (sequential, live)."""
+    key = (getattr(device, "type", device), engine)
+    if key not in DEFAULT_PRESETS:
+        raise InputError(f"no default preset for device {key[0]} and the {engine} engine: give --config")
+    return DEFAULT_PRESETS[key]
+
+
+def describe_default_presets() -> str:
+    """The defaults in words, for --help and docs: 'cpu on a CPU, gpu on an NVIDIA GPU'."""
+    engines = list(dict.fromkeys(engine for _, engine in DEFAULT_PRESETS))
+    phrases = {e: ", ".join(f"{DEFAULT_PRESETS[(d, e)]} on {DEVICE_WORDS.get(d, d)}"
+                            for d, e2 in DEFAULT_PRESETS if e2 == e) for e in engines}
+    if len(set(phrases.values())) == 1:
+        return phrases[engines[0]]
+    return "; ".join(f"{e} engine: {p}" for e, p in phrases.items())
 
 
 @dataclass
 class Config:
-    name: str = "splatam"
-    format_layer: str | None = None       # the format layer applied (configs/formats/), None = none
-    resolution: list | int | None = None  # [width, height] pixel budget or a long side, aspect kept (resolution.py); None = capture's
-    depth_upsampling: float | None = 1.0  # work at most this x the depth grid where colour is larger (None: up to colour)
-    max_depth: float | None = None        # ignore depth beyond this (metres)
-    min_confidence: int | None = None     # phones: keep depth with LiDAR confidence >= this (0-2; None: the reader's, 2)
-    isotropic: bool = True
-    near_plane: float = 0.01
-    scene_radius_depth_ratio: float = 3.0
-    seed: int = 0
-    checkpoint_every: int = 25            # frames; 0 = never
-    eval_every: int = 5                   # render metrics on every n-th frame at the end
-    tracking: TrackingConfig = field(default_factory=TrackingConfig)
-    mapping: MappingConfig = field(default_factory=MappingConfig)
-    densify: DensifyConfig = field(default_factory=DensifyConfig)
-    keyframes: KeyframeConfig = field(default_factory=KeyframeConfig)
-    live: LiveConfig = field(default_factory=LiveConfig)
-    lost_tracking: LostTrackingConfig = field(default_factory=LostTrackingConfig)
-    loop_closure: LoopClosureConfig = field(default_factory=LoopClosureConfig)
+    name: str = setting("splatam", "the preset, '+'-composition or file the config came from (set by the loader)")
+    format_layer: str | None = setting(None, "the format layer applied (configs/formats/; set by the loader), "
+                                       "or null")
+    resolution: list[int] | int | None = setting(None, "working pixels: [width, height] as a pixel budget in the "
+                                                 "capture's aspect ratio, or a long side (docs/resolution.md); "
+                                                 "null = the capture's", unit="pixels",
+                                                 trades="fewer: faster; below 320x240 one-pixel Gaussians bias "
+                                                 "the rendered depth and tracking jitters")
+    depth_upsampling: float | None = setting(1.0, "work at most this x the depth grid where colour is larger "
+                                             "(null: up to colour)", unit="x depth grid",
+                                             trades="larger: more pixels from the colour image, slower "
+                                             "(docs/resolution.md)")
+    max_depth: float | None = setting(None, "ignore depth beyond this", unit="metres")
+    min_confidence: int | None = setting(None, "phones: keep depth with LiDAR confidence >= this (0-2; null: the "
+                                         "reader's, 2)")
+    isotropic: bool = setting(True, "one scale per Gaussian (SplaTAM's); false: three scales and a rotation")
+    near_plane: float = setting(0.01, "the renderer's near plane: Gaussians closer to the camera are not drawn",
+                                unit="metres")
+    scene_radius_depth_ratio: float = setting(3.0, "scene radius = the first frame's largest depth / this "
+                                              "(mapping.prune_big_ratio is relative to it)")
+    seed: int = setting(0, "seed of the random choices (pixels, tiles, keyframe selection, RANSAC)")
+    checkpoint_every: int = setting(25, "write a checkpoint every n frames (--resume continues from it); 0 = never",
+                                    unit="frames", trades="smaller: more writing, less lost when a run stops")
+    eval_every: int = setting(5, "render metrics on every n-th frame at the end of a run", unit="frames",
+                              trades="smaller: a longer finish, metrics on more frames")
+    tracking: TrackingConfig = section(TrackingConfig, "the camera pose of each frame against the map (tracking.py)")
+    mapping: MappingConfig = section(MappingConfig, "optimising the map over a window of keyframes (mapping.py)")
+    densify: DensifyConfig = section(DensifyConfig, "where new Gaussians are added (densify.py)")
+    keyframes: KeyframeConfig = section(KeyframeConfig, "which frames are kept and which of them map (keyframes.py)")
+    live: LiveConfig = section(LiveConfig, "the live engine (run/live.py)")
+    lost_tracking: LostTrackingConfig = section(LostTrackingConfig, "when a pose is not believed, and "
+                                                "relocalisation (relocalise.py)")
+    loop_closure: LoopClosureConfig = section(LoopClosureConfig, "online loop closure (loop/)")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -64,7 +109,7 @@ class Config:
             (self.tracking.iterations >= 0, "tracking.iterations must be >= 0"),
             (self.tracking.align.iterations >= 0, "tracking.align.iterations must be >= 0"),
             (self.tracking.align.backend in ALIGN_BACKENDS, "tracking.align.backend must be auto, numba or torch"),
-            (self.tracking.pixels in ("all", "random", "gradient", "depth_edges"),
+            (self.tracking.pixels in TRACKING_PIXELS,
              "tracking.pixels must be all, random, gradient or depth_edges"),
             (self.tracking.pixel_tile >= 1 and self.tracking.pixels_per_tile >= 1 and self.tracking.align.stride >= 1,
              "tracking.pixel_tile, tracking.pixels_per_tile and tracking.align.stride must be >= 1"),
@@ -89,7 +134,7 @@ class Config:
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),
-            (self.keyframes.selection in ("overlap", "random"), "keyframes.selection must be overlap or random"),
+            (self.keyframes.selection in KEYFRAME_SELECTIONS, "keyframes.selection must be overlap or random"),
             (0 < self.tracking.resolution_scale <= 1, "tracking.resolution_scale must be in (0, 1]"),
             (0 < self.densify.resolution_scale <= 1, "densify.resolution_scale must be in (0, 1]"),
             (_valid_resolution(self.resolution), "resolution must be [width, height], a long side or null"),
@@ -117,27 +162,34 @@ MOVED_KEYS = {(TrackingConfig, f"align_{k}"): f"tracking.align.{k}" for k in
               ("iterations", "levels", "passes", "color_weight", "depth_noise", "stride", "min_points")}
 
 
-def _merge(target, values: dict, where: str):
-    """Apply a nested dict onto a dataclass instance; unknown keys are errors."""
+def _merge(target, values: dict, where: str, prefix: str = ""):
+    """Apply a nested dict onto a dataclass instance: unknown keys and values of the wrong type are
+    errors naming `where` (the file) and the key's dotted path."""
     names = {f.name: f for f in dataclasses.fields(target)}
+    hints = field_types(type(target))
     for key, value in values.items():
+        path = f"{prefix}{key}"
         if (type(target), key) in MOVED_KEYS:
             new = MOVED_KEYS[(type(target), key)]
             raise InputError(f"{where}: config key tracking.{key} is now {new} (a nested section: "
                              f"tracking: {{align: {{{new.rsplit('.', 1)[1]}: ...}}}})")
         if key not in names:
-            raise InputError(f"{where}: unknown config key {key!r} (known: {', '.join(sorted(names))})")
+            raise InputError(f"{where}: unknown config key {key!r}" + (f" in {prefix[:-1]}" if prefix else "")
+                             + f" (known: {', '.join(sorted(names))})")
         current = getattr(target, key)
         if dataclasses.is_dataclass(current):
-            if not isinstance(value, dict):
-                raise InputError(f"{where}: {key} must be a mapping")
-            _merge(current, value, f"{where}: {key}")
-        elif isinstance(current, dict) and isinstance(value, dict):
+            check(value, dict, path, where)
+            _merge(current, value, where, f"{path}.")
+        elif isinstance(current, dict):
+            check(value, dict, path, where)
             unknown = set(value) - set(current)
             if unknown:
-                raise InputError(f"{where}: unknown keys in {key}: {sorted(unknown)}")
+                raise InputError(f"{where}: unknown keys in {path}: {sorted(unknown)}")
+            for k, v in value.items():
+                check(v, (get_args(hints[key]) or (str, object))[1], f"{path}.{k}", where)
             setattr(target, key, {**current, **value})
         else:
+            check(value, hints[key], path, where)
             setattr(target, key, value)
 
 
@@ -190,15 +242,21 @@ def _apply(config: Config, spec: str, seen: tuple = ()) -> None:
     if str(path) in seen:
         raise InputError(f"{path}: 'base' chain loops")
     data = _read_yaml(path)
-    if _is_format_layer(path):
+    base = data.pop("base", None)
+    if base is not None:
+        check(base, str, "base", str(path))
+    layer = _is_format_layer(path)
+    if layer:
         wrong = sorted(set(data) - set(FORMAT_KEYS))
         if wrong:
             raise InputError(f"{path}: a format layer may set only {', '.join(FORMAT_KEYS)}, not {', '.join(wrong)} "
                              "(iterations, learning rates and resolution belong to the budget presets)")
-        config.format_layer = path.stem
-    base = data.pop("base", None)
+        if base and not _is_format_layer(_preset_path(base)):
+            raise InputError(f"{path}: a format layer's base must be another format layer, not {base}")
     if base:
-        _apply(config, str(base), seen + (str(path),))
+        _apply(config, base, seen + (str(path),))
+    if layer:
+        config.format_layer = path.stem
     _merge(config, data, str(path))
 
 
@@ -219,13 +277,15 @@ def load_config(spec: str | None = None, overrides: dict | None = None, *, forma
     return config.validate()
 
 
-def format_layer_settings(name: str | None) -> dict:
-    """What format layer `name` sets, flattened ({"max_depth": 5.0, "keyframes.every": 2})."""
+def format_layer_settings(name: str | None, seen: tuple = ()) -> dict:
+    """What format layer `name` sets, its base's settings first, flattened ({"max_depth": 5.0, "keyframes.every": 2})."""
     path = format_layer_path(name)
-    if path is None:
+    if path is None or path in seen:
         return {}
-    flat = {}
-    for key, value in _read_yaml(path).items():
+    data = _read_yaml(path)
+    base = data.pop("base", None)
+    flat = format_layer_settings(str(base), seen + (path,)) if base else {}
+    for key, value in data.items():
         if isinstance(value, dict):
             flat.update({f"{key}.{k}": v for k, v in value.items()})
         else:

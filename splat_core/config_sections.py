@@ -1,136 +1,218 @@
 """The config's sections, one dataclass each (tracking, mapping, densify, keyframes, live engine,
-lost tracking, loop closure); config.py composes them into Config and reads presets."""
+lost tracking, loop closure); config.py composes them into Config and reads presets.
+
+Each field is a `setting(default, what it does, unit=, trades=)` (config_schema.py): its type
+annotation is checked against what a YAML file gives, and docs/settings.md is generated from it.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Literal, get_args
 
+from .config_schema import section, setting
 
-ALIGN_BACKENDS = ("auto", "numba", "torch")
+AlignBackend = Literal["auto", "numba", "torch"]
+TrackingPixels = Literal["all", "random", "gradient", "depth_edges"]
+KeyframeSelection = Literal["overlap", "random"]
+ALIGN_BACKENDS = get_args(AlignBackend)
+TRACKING_PIXELS = get_args(TrackingPixels)
+KEYFRAME_SELECTIONS = get_args(KeyframeSelection)
 
 
 @dataclass
 class AlignConfig:
     """tracking.align: the Gauss-Newton pre-alignment to the rendered map (direct_align.py)."""
-    iterations: int = 0                   # per pyramid level; 0 = off
-    levels: int = 3                       # pyramid levels
-    passes: int = 1                       # renders (re-linearisations)
-    color_weight: float = 1.0             # photometric term's weight against point-to-plane depth
-    depth_noise: bool = False             # divide its depth residuals by a structured-light noise model sigma(z)
-    stride: int = 1                       # every n-th live pixel (x and y) at full resolution ...
-    min_points: int = 4096                # ... but a smaller stride where that would leave fewer pixels
-    backend: str = "auto"                 # numba (CPU, direct_align.py) | torch (the map's device, direct_align_torch.py) | auto: torch on CUDA, else numba
+    iterations: int = setting(0, "Gauss-Newton iterations per pyramid level; 0 = no alignment", unit="iterations",
+                              trades="more: slower tracking, converges from further away (cpu and gpu: 10)")
+    levels: int = setting(3, "pyramid levels of the alignment", unit="levels",
+                          trades="more: catches larger motions, at a little more cost")
+    passes: int = setting(1, "renders of the map (re-linearisations) during the alignment", unit="renders",
+                          trades="more: slower; a pose far off is walked in steps")
+    color_weight: float = setting(1.0, "the photometric term's weight against the point-to-plane depth term")
+    depth_noise: bool = setting(False, "divide the depth residuals by a structured-light noise model sigma(z), so "
+                                "far, noisy depth does not outvote near surfaces")
+    stride: int = setting(1, "use every n-th live pixel in x and y at full resolution ...", unit="pixels",
+                          trades="larger: faster alignment on fewer pixels (cpu: 4, gpu: 2)")
+    min_points: int = setting(4096, "... but a smaller stride where that would leave fewer pixels", unit="pixels")
+    backend: AlignBackend = setting("auto", "numba (CPU, direct_align.py), torch (the map's device, "
+                                    "direct_align_torch.py), or auto: torch on CUDA, else numba")
 
 
 @dataclass
 class TrackingConfig:
-    iterations: int = 40
-    lr_rotation: float = 4e-4             # Adam on the w2c quaternion
-    lr_translation: float = 2e-3          # Adam on the w2c translation
-    silhouette_threshold: float = 0.99    # only pixels the map already explains are used
-    depth_weight: float = 1.0
-    color_weight: float = 0.5
-    resolution_scale: float = 1.0         # track at this fraction of the working resolution
-    coarse_iterations: int = 0            # first this many iterations at coarse_scale (coarse to fine)
-    coarse_scale: float = 0.5
-    depth_loss_threshold: float | None = None  # if set: double the iterations once while above (per valid pixel, metres)
-    use_reference_poses: bool = False     # skip tracking, use the capture's poses (mapping only)
-    compat_post_step_candidate: bool = False  # the original code's off-by-one best-pose snapshot
-    early_stop_tolerance: float = 0.0     # stop when the pose update is below this (m / rad); 0 = never
-    outlier_factor: float | None = None   # drop pixels whose depth error exceeds this x the median error
-    align: AlignConfig = field(default_factory=AlignConfig)   # Gauss-Newton pre-alignment (tracking.align.*)
-    pixels: str = "all"                   # pixels of the tracking loss: all | random | gradient | depth_edges (pixel_selection.py)
-    pixel_tile: int = 8                   # ... chosen per pixel_tile x pixel_tile block
-    pixels_per_tile: int = 1
-    min_pixels: int = 1024                # ... but smaller blocks where that would leave fewer pixels
+    iterations: int = setting(40, "SplaTAM's Adam iterations on the pose per frame (after the alignment, if any)",
+                              unit="iterations", trades="more: slower, a pose nearer the loss's minimum (the paper: 40; "
+                              "cpu: 2 after the alignment)")
+    lr_rotation: float = setting(4e-4, "Adam's learning rate on the w2c quaternion", trades="larger: longer first "
+                                 "steps (Adam's are about a rate long); after an alignment the paper's rates shook "
+                                 "the pose more than they corrected it (cpu, gpu: an eighth)")
+    lr_translation: float = setting(2e-3, "Adam's learning rate on the w2c translation")
+    silhouette_threshold: float = setting(0.99, "only pixels the map already explains (silhouette above this) "
+                                          "enter the tracking loss", unit="fraction")
+    depth_weight: float = setting(1.0, "weight of the depth L1 term in the tracking loss")
+    color_weight: float = setting(0.5, "weight of the colour L1 term in the tracking loss")
+    resolution_scale: float = setting(1.0, "track at this fraction of the working resolution", unit="fraction",
+                                      trades="smaller: faster, a less precise pose")
+    coarse_iterations: int = setting(0, "first this many iterations at coarse_scale (coarse to fine)",
+                                     unit="iterations", trades="cheaper iterations at coarse_scale")
+    coarse_scale: float = setting(0.5, "resolution of the coarse iterations", unit="fraction")
+    depth_loss_threshold: float | None = setting(None, "if set: double the iterations once while the depth error "
+                                                 "per valid pixel stays above this", unit="metres",
+                                                 trades="slower on hard frames only")
+    use_reference_poses: bool = setting(False, "skip tracking and use the capture's poses (mapping only)")
+    compat_post_step_candidate: bool = setting(False, "the original code's off-by-one best-pose snapshot (after "
+                                               "the step, not before)")
+    early_stop_tolerance: float = setting(0.0, "stop when the pose update is below this; 0 = never",
+                                          unit="m / rad", trades="larger: fewer iterations, may stop "
+                                          "before the pose has converged")
+    outlier_factor: float | None = setting(None, "drop pixels whose depth error exceeds this x the median error "
+                                           "(SplaTAM's optional rule); null = keep all")
+    align: AlignConfig = section(AlignConfig, "the Gauss-Newton pre-alignment to the rendered map (direct_align.py)")
+    pixels: TrackingPixels = setting("all", "pixels of the tracking loss: all, or a few per tile chosen at random, "
+                                     "by gradient or on depth edges (pixel_selection.py)",
+                                     trades="sparse: far cheaper iterations on the CPU (cpu: random); gsplat draws "
+                                     "the whole image anyway")
+    pixel_tile: int = setting(8, "... chosen per pixel_tile x pixel_tile block", unit="pixels",
+                              trades="larger: fewer pixels, faster, noisier loss")
+    pixels_per_tile: int = setting(1, "... this many per block", unit="pixels")
+    min_pixels: int = setting(1024, "... but smaller blocks where that would leave fewer pixels", unit="pixels")
 
 
 @dataclass
 class MappingConfig:
-    iterations: int = 60
-    first_frame_iterations: int | None = None   # None = same as iterations
-    window_size: int = 24
-    map_every: int = 1
-    depth_weight: float = 1.0
-    color_weight: float = 0.5
-    ssim_weight: float = 0.2              # colour term = (1-w) L1 + w (1 - SSIM)
-    lrs: dict = field(default_factory=lambda: dict(
-        means=1e-4, colors=2.5e-3, rotations=1e-3, logit_opacities=5e-2, log_scales=1e-3))
-    prune_every: int = 20
-    prune_until: int = 20
-    prune_opacity: float = 0.005
-    prune_big_ratio: float = 0.1          # remove Gaussians larger than this x scene radius
-    visible_only: bool = True             # optimise only Gaussians seen from the window (same result for the rest: zero grads)
-    tile_fraction: float = 1.0            # each iteration draws and compares this fraction of the 16 x 16 tiles (random; 1 = all) ...
-    min_tiles: int = 64                   # ... but at least this many (small images map on every tile)
+    iterations: int = setting(60, "Adam iterations on the map per mapped frame, each on one view of the window",
+                              unit="iterations", trades="more: slower, a better map (16 half-image iterations map "
+                              "about 1 dB better than 10 on SUN3D: docs/presets.md)")
+    first_frame_iterations: int | None = setting(None, "mapping iterations on frame 0, over every tile (it anchors "
+                                                 "every later pose); null = iterations", unit="iterations")
+    window_size: int = setting(24, "views a mapping iteration draws from: the current frame, the latest keyframe "
+                               "and overlapping keyframes", unit="views",
+                               trades="larger: the map stays consistent with more of the past; the current frame "
+                               "gets fewer of the iterations")
+    map_every: int = setting(1, "map every n-th frame", unit="frames", trades="larger: faster, the map lags")
+    depth_weight: float = setting(1.0, "weight of the depth L1 term in the mapping loss")
+    color_weight: float = setting(0.5, "weight of the colour term in the mapping loss")
+    ssim_weight: float = setting(0.2, "colour term = (1-w) L1 + w (1 - SSIM)", unit="fraction")
+    lrs: dict[str, float] = setting(dict(means=1e-4, colors=2.5e-3, rotations=1e-3, logit_opacities=5e-2,
+                                         log_scales=1e-3),
+                                    "Adam's learning rate per Gaussian parameter (all five keys needed)")
+    prune_every: int = setting(20, "prune transparent and huge Gaussians every n-th mapping iteration ...",
+                               unit="iterations")
+    prune_until: int = setting(20, "... up to this iteration", unit="iterations")
+    prune_opacity: float = setting(0.005, "pruning removes Gaussians less opaque than this", unit="opacity")
+    prune_big_ratio: float = setting(0.1, "pruning removes Gaussians larger than this x the scene radius",
+                                     unit="x scene radius")
+    visible_only: bool = setting(True, "optimise only Gaussians seen from the window: the same result (the others "
+                                 "get zero gradients), at a cost that follows the visible part only")
+    tile_fraction: float = setting(1.0, "each iteration draws and compares this fraction of the 16 x 16 tiles "
+                                   "(random; 1 = all) ...", unit="fraction",
+                                   trades="smaller: cheaper iterations on the CPU rasterizer (cpu: 0.5; SUN3D "
+                                   "fragment 2: 10 half-image iterations within 0.3 dB of 8 whole-image ones at about "
+                                   "0.8 of the cost); no saving with gsplat")
+    min_tiles: int = setting(64, "... but at least this many (small images map on every tile)", unit="tiles")
 
 
 @dataclass
 class DensifyConfig:
-    silhouette_threshold: float = 0.5
-    depth_error_factor: float = 50.0      # "new geometry in front": error > factor x median error
-    resolution_scale: float = 1.0         # densify at this fraction of the working resolution
-    initial_opacity: float = 0.5
+    silhouette_threshold: float = setting(0.5, "new Gaussians where the map's silhouette is below this",
+                                          unit="fraction")
+    depth_error_factor: float = setting(50.0, "new Gaussians in front of the map where the depth error exceeds "
+                                        "this x the median error (\"new geometry in front\")")
+    resolution_scale: float = setting(1.0, "densify at this fraction of the working resolution", unit="fraction",
+                                      trades="smaller: fewer, larger new Gaussians: faster, a coarser map "
+                                      "(splatam_s: 0.5)")
+    initial_opacity: float = setting(0.5, "opacity of new Gaussians", unit="opacity")
 
 
 @dataclass
 class KeyframeConfig:
-    every: int = 5
-    selection: str = "overlap"            # "overlap" (paper: top-k) or "random" (original code)
-    overlap_samples: int = 1600
-    overlap_border: int = 20
-    overlap_within_depth: bool = False    # a point overlaps a keyframe only within the depth it measured (no: SplaTAM's test)
-    memory_mb: float = 512.0              # keyframe images kept in host memory; older ones are read from a file (keyframes.py)
+    every: int = setting(5, "frame 0, every n-th frame and the second-to-last become keyframes", unit="frames",
+                         trades="smaller: more keyframes to map from, more memory")
+    selection: KeyframeSelection = setting("overlap", "the window's keyframes: the most overlapping (the paper: "
+                                           "top-k) or a random subset of the overlapping ones (the original code)")
+    overlap_samples: int = setting(1600, "pixels sampled to score a keyframe's overlap with the view",
+                                   unit="pixels")
+    overlap_border: int = setting(20, "a sample overlaps a keyframe when it lands this far inside its image",
+                                  unit="pixels")
+    overlap_within_depth: bool = setting(False, "a sample overlaps a keyframe only within the depth it measured "
+                                         "(false: SplaTAM's test, no far limit)",
+                                         trades="true: the window's cost does not grow along a corridor "
+                                         "(docs/long-runs.md)")
+    memory_mb: float = setting(512.0, "keyframe images kept in host memory; older ones are read from a file "
+                               "(keyframes.py)", unit="MB", trades="smaller: less memory, more reads")
 
 
 @dataclass
 class LiveConfig:
-    max_lag: int = 2                      # frames the live engine's tracker may run ahead of the newest mapped frame (live.py)
+    max_lag: int = setting(2, "frames the live engine's tracker may run ahead of the newest mapped frame (live.py)",
+                           unit="frames", trades="larger: faster live tracking, a worse map (2 maps about 0.7 dB "
+                           "worse than 1 on SUN3D fragment 2)")
 
 
 @dataclass
 class LostTrackingConfig:
     """When a tracked pose is not believed (relocalise.py) and how it is relocalised."""
-    enabled: bool = True
-    loss_factor: float = 5.0              # lost: loss per pixel above this x the median of the recent tracked frames ...
-    loss_history: int = 10                # ... over this many tracked frames
-    min_history: int = 3                  # ... once that many are known
-    min_coverage: float = 0.25            # lost: the map's silhouette covers less than this fraction of the loss's valid-depth pixels
-    max_speed: float = 3.0                # lost: the camera moved faster than this (m/s) since the last tracked frame ...
-    max_turn_rate_deg: float = 360.0      # ... or turned faster (degrees/s); the time from the timestamps (--stride, skipped frames)
-    recent_keyframes: int = 2             # relocalisation starts: the last tracked pose, this many newest keyframes ...
-    spread_keyframes: int = 3             # ... and this many keyframes spread over the run
-    align_iterations: int = 10            # relocalisation aligns from each start by Gauss-Newton (at least this many iterations per level) ...
-    align_passes: int = 3                 # ... rendering the map again this many times, so a jump is walked in steps
+    enabled: bool = setting(True, "detect lost frames and relocalise them (docs/lost-tracking.md)")
+    loss_factor: float = setting(5.0, "lost: loss per pixel above this x the median of the recent tracked "
+                                 "frames ...")
+    loss_history: int = setting(10, "... over this many tracked frames", unit="frames")
+    min_history: int = setting(3, "... once that many are known", unit="frames")
+    min_coverage: float = setting(0.25, "lost: the map's silhouette covers less than this fraction of the loss's "
+                                  "valid-depth pixels", unit="fraction")
+    max_speed: float = setting(3.0, "lost: the camera moved faster than this since the last tracked frame ...",
+                               unit="m/s")
+    max_turn_rate_deg: float = setting(360.0, "... or turned faster; the time from the timestamps (--stride, "
+                                       "skipped frames)", unit="degrees/s")
+    recent_keyframes: int = setting(2, "relocalisation starts: the last tracked pose, this many newest "
+                                    "keyframes ...", unit="keyframes")
+    spread_keyframes: int = setting(3, "... and this many keyframes spread over the run", unit="keyframes",
+                                    trades="more starts: relocalising a lost frame costs more, with more chances to find its pose")
+    align_iterations: int = setting(10, "relocalisation aligns from each start by Gauss-Newton (at least this many "
+                                    "iterations per level) ...", unit="iterations")
+    align_passes: int = setting(3, "... rendering the map again this many times, so a jump is walked in steps",
+                                unit="renders")
 
 
 @dataclass
 class LoopClosureConfig:
     """Online loop closure (splat_core/loop/, docs/loop-closure.md); off in the paper presets."""
-    enabled: bool = False
-    min_gap_frames: int = 100             # a candidate keyframe is at least this many frames older than the current one
-    min_visible: float = 0.15             # candidate: this fraction of the current depth is explained by its old Gaussians ...
-    min_orb_matches: int = 25             # ... or ORB matches (ratio test) with it reach this many
-    max_candidates: int = 3               # verified per keyframe (best first)
-    orb_by_map: int = 8                   # ORB-matched per keyframe: the old keyframes the map names most ...
-    orb_sample: int = 8                   # ... and this many others spread over the run (random offset):
-                                          # per-keyframe cost stays bounded however long the run
-    feature_cache: int = 32               # keyframes whose ORB features stay in memory (recomputed otherwise)
-    min_inliers: int = 12                 # 3D-3D RANSAC inliers (ORB matches with depth) to accept
-    min_inlier_ratio: float = 0.25
-    inlier_distance: float = 0.04         # metres, RANSAC inlier threshold
-    min_depth_agreement: float = 0.5      # the old keyframe's depth agrees with the current one at the loop's pose
-    min_overlap: float = 0.3              # alignment: fraction of the frame's depth the old map explains
-    max_rmse: float = 0.03                # alignment: point-to-plane RMS (metres) at most
-    max_disagreement: float = 0.05        # RANSAC and alignment agree within this (metres) ...
-    max_disagreement_deg: float = 3.0     # ... and degrees
-    min_correction: float = 0.03          # optimise the graph only when the loop disagrees by this (metres) ...
-    min_correction_deg: float = 1.0       # ... or degrees with the current poses (1 cm: 7-Scenes' first 300 frames 1.30 -> 1.55 cm)
-    odometry_sigma: float = 0.01          # metres per keyframe step (+ odometry_sigma_rel x the step's length)
-    odometry_sigma_rel: float = 0.05
-    odometry_sigma_deg: float = 0.3
-    remap_iterations: int = 20            # mapping iterations over the loop's keyframes after a correction
-    cooldown_keyframes: int = 2           # keyframes without detection after an accepted loop
-    map_route: bool = False               # verify candidates RANSAC cannot measure by aligning from the tracked
-                                          # pose against the old map: not independent of tracking (on 7-Scenes
-                                          # the two corrections it applied made the first 300 frames worse)
+    enabled: bool = setting(False, "close loops online (cpu and gpu: on)", trades="cost per frame within "
+                            "run-to-run spread on the CPU; corrects drift on returns (docs/loop-closure.md)")
+    min_gap_frames: int = setting(100, "a candidate keyframe is at least this many frames older than the current "
+                                  "one", unit="frames")
+    min_visible: float = setting(0.15, "candidate: this fraction of the current depth is explained by its old "
+                                 "Gaussians ...", unit="fraction")
+    min_orb_matches: int = setting(25, "... or ORB matches (ratio test) with it reach this many", unit="matches")
+    max_candidates: int = setting(3, "candidates verified per keyframe (best first)", unit="keyframes")
+    orb_by_map: int = setting(8, "ORB-matched per keyframe: the old keyframes the map names most ...",
+                              unit="keyframes", trades="more: more candidates matched, more cost per keyframe")
+    orb_sample: int = setting(8, "... and this many others spread over the run (random offset): per-keyframe cost "
+                              "stays bounded however long the run", unit="keyframes")
+    feature_cache: int = setting(32, "keyframes whose ORB features stay in memory (recomputed otherwise)",
+                                 unit="keyframes", trades="larger: more memory, fewer recomputations")
+    min_inliers: int = setting(12, "3D-3D RANSAC inliers (ORB matches with depth) to accept", unit="matches")
+    min_inlier_ratio: float = setting(0.25, "... and at least this fraction of the ORB matches with depth", unit="fraction")
+    inlier_distance: float = setting(0.04, "RANSAC inlier threshold", unit="metres")
+    min_depth_agreement: float = setting(0.5, "the old keyframe's depth agrees with the current one at the loop's "
+                                         "pose", unit="fraction")
+    min_overlap: float = setting(0.3, "alignment: fraction of the frame's depth the old map explains",
+                                 unit="fraction")
+    max_rmse: float = setting(0.03, "alignment: point-to-plane RMS at most", unit="metres")
+    max_disagreement: float = setting(0.05, "RANSAC and alignment agree within this ...", unit="metres")
+    max_disagreement_deg: float = setting(3.0, "... and this", unit="degrees")
+    min_correction: float = setting(0.03, "optimise the graph only when the loop disagrees by this with the current "
+                                    "poses ... (at 1 cm: 7-Scenes' first 300 frames 1.30 -> 1.55 cm)", unit="metres")
+    min_correction_deg: float = setting(1.0, "... or this", unit="degrees")
+    odometry_sigma: float = setting(0.01, "pose graph: odometry noise per keyframe step (+ odometry_sigma_rel x "
+                                    "the step's length)", unit="metres")
+    odometry_sigma_rel: float = setting(0.05, "pose graph: odometry noise per metre of the step", unit="fraction")
+    odometry_sigma_deg: float = setting(0.3, "pose graph: odometry rotation noise per keyframe step",
+                                        unit="degrees")
+    remap_iterations: int = setting(20, "mapping iterations over the loop's keyframes after a correction",
+                                    unit="iterations", trades="more: a map more consistent with the corrected "
+                                    "poses, a longer stall at each loop")
+    cooldown_keyframes: int = setting(2, "keyframes without detection after an accepted loop", unit="keyframes")
+    map_route: bool = setting(False, "verify candidates RANSAC cannot measure by aligning from the tracked pose "
+                              "against the old map: not independent of tracking (on 7-Scenes the two corrections "
+                              "it applied made the first 300 frames worse)")

@@ -7,16 +7,19 @@ import dataclasses
 import pytest
 import torch
 
-from app.run_setup import default_config_name, load_run_config
-from splat_core.config import AlignConfig, config_from_dict, load_config
+from app.run_setup import load_run_config
+from splat_core.config import AlignConfig, config_from_dict, default_preset, load_config
 from splat_core.errors import InputError
 
 
 def test_device_auto_picks_the_gpu_preset_on_cuda_and_cpu_elsewhere():
-    assert default_config_name(torch.device("cuda")) == "gpu"
-    assert default_config_name(torch.device("cpu")) == "cpu"
-    assert load_run_config(None, "synthetic", torch.device("cuda")).name == "gpu"
-    assert load_run_config(None, "synthetic", torch.device("cpu")).name == "cpu"
+    for engine in ("sequential", "live"):
+        assert default_preset(torch.device("cuda"), engine) == default_preset("cuda", engine) == "gpu"
+        assert default_preset(torch.device("cpu"), engine) == default_preset("cpu", engine) == "cpu"
+        assert load_run_config(None, "synthetic", torch.device("cuda"), engine=engine).name == "gpu"
+        assert load_run_config(None, "synthetic", torch.device("cpu"), engine=engine).name == "cpu"
+    with pytest.raises(InputError, match="no default preset for device mps"):
+        default_preset("mps")
 
 
 def test_gpu_preset_is_live_sized_and_the_paper_presets_stay_the_papers():

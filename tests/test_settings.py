@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import importlib
 import json
 
 import cv2
@@ -12,7 +13,7 @@ import pytest
 import yaml
 
 from helpers import captures as fixtures
-from app.cli import splatam_main
+from app.cli import SUBCOMMANDS, splatam_main
 from splat_core import config as C
 from splat_core.config import load_config
 from splat_core.errors import InputError
@@ -69,7 +70,7 @@ def test_every_format_has_a_layer_and_budgets_keep_their_iterations():
                 assert getattr(c, part) == getattr(alone, part), (budget, fmt, part)
             assert c.resolution == alone.resolution and c.scene_radius_depth_ratio == alone.scene_radius_depth_ratio
     for path in (C.CONFIG_DIR / "formats").glob("*.yaml"):
-        assert set(yaml.safe_load(path.read_text()) or {}) <= set(C.FORMAT_KEYS), path
+        assert set(yaml.safe_load(path.read_text()) or {}) <= {*C.FORMAT_KEYS, "base"}, path
     phone = load_config("cpu", format="record3d")
     assert phone.max_depth == 5.0 and phone.min_confidence == 2 and load_config("cpu", format="tum").max_depth is None
 
@@ -153,3 +154,131 @@ def test_config_yaml_round_trips_with_both_layers(tmp_path):
     path.write_text(yaml.safe_dump(c.to_dict(), sort_keys=False))
     again = load_config(str(path), format="nerfcapture")
     assert dataclasses.replace(again, name=c.name).to_dict() == c.to_dict()
+
+
+@pytest.mark.parametrize("text, message", [
+    ("tracking: {iterations: ten}", "tracking.iterations = 'ten': expected an integer"),
+    ("tracking: {lr_rotation: fast}", "tracking.lr_rotation = 'fast': expected a number"),
+    ("tracking: {lr_rotation: 1e-3}", "tracking.lr_rotation = '1e-3': expected a number (YAML reads this as text"),
+    ("mapping: {iterations: true}", "mapping.iterations = True: expected an integer"),
+    ("mapping: {iterations: 2.5}", "mapping.iterations = 2.5: expected an integer"),
+    ("tracking: {pixels: some}", "tracking.pixels = 'some': expected one of all, random, gradient, depth_edges"),
+    ("tracking: {align: {backend: cuda}}", "tracking.align.backend = 'cuda': expected one of auto, numba, torch"),
+    ("loop_closure: {enabled: 1}", "loop_closure.enabled = 1: expected true or false"),
+    ("max_depth: far", "max_depth = 'far': expected a number or null"),
+    ("resolution: [320, big]", "resolution = [320, 'big']: expected a list of integers, an integer or null"),
+    ("mapping: {lrs: {means: x}}", "mapping.lrs.means = 'x': expected a number"),
+    ("keyframes: 5", "keyframes = 5: expected a mapping"),
+    ("base: 3", "base = 3: expected a string"),
+])
+def test_a_value_of_the_wrong_type_is_one_error_naming_file_key_value_and_type(tmp_path, capsys, text, message):
+    path = tmp_path / "my.yaml"
+    path.write_text(f"base: cpu\n{text}\n" if not text.startswith("base") else text + "\n")
+    with pytest.raises(InputError) as error:
+        load_config(str(path))
+    assert str(error.value).startswith(f"{path}: {message}")
+    # the CLI prints it as one line, no traceback
+    assert splatam_main(["config", "show", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {path}: {message}") and err.count("\n") == 1
+
+
+def test_right_types_pass_ints_serve_as_numbers_and_keep_their_value():
+    c = load_config("cpu", {"depth_upsampling": 2, "max_depth": None, "tracking": {"lr_rotation": 1},
+                            "resolution": 200, "mapping": {"lrs": {"means": 1}}})
+    assert c.depth_upsampling == 2 and type(c.depth_upsampling) is int and c.mapping.lrs["means"] == 1
+    assert load_config("cpu", {"resolution": [64, 48]}).resolution == [64, 48]
+    with pytest.raises(InputError, match=r"overrides: tracking\.iterations = '3': expected an integer"):
+        load_config("cpu", {"tracking": {"iterations": "3"}})
+    with pytest.raises(InputError, match="mapping.window_size must be >= 2"):       # range checks stay
+        load_config("cpu", {"mapping": {"window_size": 1}})
+
+
+def test_every_shipped_preset_and_default_fits_the_schema():
+    from splat_core.config_schema import accepts, leaves
+    from splat_core.settings_doc import resolved
+
+    for name in C.preset_names():
+        config = load_config(name)
+        for key, f, hint in leaves(C.Config):
+            assert accepts(resolved(config, key), hint), (name, key)
+            assert f.metadata.get("doc"), key                  # every key is documented beside its field
+
+
+def test_strayscanner_layer_is_record3ds():
+    stray, r3d = (C.format_layer_path(n) for n in ("strayscanner", "record3d"))
+    assert yaml.safe_load(stray.read_text()) == {"base": "record3d"}
+    assert C.format_layer_settings("strayscanner") == C.format_layer_settings("record3d") == \
+        {"max_depth": 5.0, "min_confidence": 2, "depth_upsampling": 2.0}
+    for budget in BUDGETS:
+        a, b = load_config(budget, format="strayscanner"), load_config(budget, format="record3d")
+        assert a.format_layer == "strayscanner" and b.format_layer == "record3d"
+        assert dataclasses.replace(a, format_layer="record3d").to_dict() == b.to_dict()
+
+
+def test_a_format_layers_base_must_be_a_format_layer(tmp_path, monkeypatch):
+    (tmp_path / "formats").mkdir()
+    (tmp_path / "cpu.yaml").write_text("tracking: {iterations: 2}\n")
+    (tmp_path / "formats" / "tum.yaml").write_text("base: cpu\n")
+    monkeypatch.setattr(C, "CONFIG_DIR", tmp_path)
+    with pytest.raises(InputError, match="a format layer's base must be another format layer, not cpu"):
+        load_config("splatam", format="tum")
+
+
+def test_config_show_prints_a_resolved_config_that_loads_back(tmp_path, capsys):
+    assert splatam_main(["config", "show", "cpu+splatam_s", "--format", "record3d"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("# budget cpu+splatam_s + format layer record3d (max_depth 5.0")
+    shown = yaml.safe_load(out)
+    expected = load_config("cpu+splatam_s", format="record3d")
+    assert shown == expected.to_dict()
+    (tmp_path / "shown.yaml").write_text(out)
+    again = load_config(str(tmp_path / "shown.yaml"))
+    assert dataclasses.replace(again, name=expected.name).to_dict() == expected.to_dict()
+
+
+@pytest.mark.parametrize("device, engine", [("cpu", "sequential"), ("cuda", "live"), ("cuda", "sequential")])
+def test_config_show_without_a_name_shows_the_devices_default_preset(capsys, device, engine):
+    assert splatam_main(["config", "show", "--device", device, "--engine", engine]) == 0
+    out = capsys.readouterr().out
+    assert yaml.safe_load(out)["name"] == C.default_preset(device, engine)
+    assert yaml.safe_load(out) == load_config(C.default_preset(device, engine)).to_dict()
+
+
+def test_config_show_refuses_an_unknown_format_or_preset(capsys):
+    assert splatam_main(["config", "show", "cpu", "--format", "kinect"]) == 2
+    assert "error: --format kinect: no format layer of that name" in capsys.readouterr().err
+    assert splatam_main(["config", "show", "nope"]) == 2
+    assert "error: nope: no such config file or preset" in capsys.readouterr().err
+
+
+def test_the_default_preset_is_stated_once_and_every_command_uses_it(monkeypatch):
+    from app.run_setup import load_run_config
+
+    for (device, engine), preset in C.DEFAULT_PRESETS.items():
+        assert load_run_config(None, "tum", device, engine=engine).name == preset
+    monkeypatch.setitem(C.DEFAULT_PRESETS, ("cpu", "live"), "splatam_s")         # a later live preset
+    assert load_run_config(None, "tum", "cpu", engine="live").name == "splatam_s"
+    assert "live engine: splatam_s on a CPU" in C.describe_default_presets()
+    for command in ("run", "batch", "info", "config"):        # each --help says it, from the table
+        p = argparse.ArgumentParser()
+        importlib.import_module(SUBCOMMANDS[command][0]).add_arguments(p)
+        assert C.describe_default_presets() in " ".join(p.format_help().split()), command
+    # no other module names a preset for a device
+    root = C.CONFIG_DIR.parent
+    for path in [*(root / "app").rglob("*.py"), *(root / "splat_core").rglob("*.py")]:
+        if path != root / "splat_core" / "config.py":
+            assert '"gpu"' not in path.read_text() and "splatam on a GPU" not in path.read_text(), path
+
+
+def test_docs_settings_md_is_the_generated_page():
+    from splat_core.config_schema import leaves
+    from splat_core.settings_doc import render
+
+    page = (C.CONFIG_DIR.parent / "docs" / "settings.md").read_text()
+    assert page == render(), "docs/settings.md is stale: python -m splat_core.settings_doc > docs/settings.md"
+    for key, _, _ in leaves(C.Config):
+        assert f"| `{key}` |" in page
+    assert "`cpu`: `2`" in page and "`strayscanner` (format layer): `5.0`" in page
+    for doc in ("index.md", "presets.md"):
+        assert "(settings.md)" in (C.CONFIG_DIR.parent / "docs" / doc).read_text(), doc

@@ -8,12 +8,15 @@ from __future__ import annotations
 import argparse
 import json
 
+from splat_core.config import describe_default_presets
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--input", required=True, help="capture folder or Record3D .r3d file")
     p.add_argument("--format", default=None, help="reader to use instead of detecting (tum, replica, scannet, "
                                                   "scannetpp, nerfcapture, record3d, strayscanner)")
-    p.add_argument("--config", default=None, help="budget a run would use (default: cpu on a CPU, gpu on a GPU)")
+    p.add_argument("--config", default=None, help="budget a run would use (default: as splatam run's, "
+                   f"{describe_default_presets()})")
     p.add_argument("--resolution", default=None, metavar="WxH|L|native", help="as on splatam run")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     p.add_argument("--gap", type=int, default=10, help="frames between the two views of the pose check (10)")
