@@ -11,7 +11,7 @@ ALIGN_BACKENDS = ("auto", "numba", "torch")
 
 @dataclass
 class AlignConfig:
-    """tracking.align: the Gauss-Newton pre-alignment to the rendered map (direct_align.py)."""
+    """tracking.align: the Gauss-Newton pre-alignment to the rendered map (align/)."""
     iterations: int = 0                   # per pyramid level; 0 = off
     levels: int = 3                       # pyramid levels
     passes: int = 1                       # renders (re-linearisations)
@@ -19,7 +19,7 @@ class AlignConfig:
     depth_noise: bool = False             # divide its depth residuals by a structured-light noise model sigma(z)
     stride: int = 1                       # every n-th live pixel (x and y) at full resolution ...
     min_points: int = 4096                # ... but a smaller stride where that would leave fewer pixels
-    backend: str = "auto"                 # numba (CPU, direct_align.py) | torch (the map's device, direct_align_torch.py) | auto: torch on CUDA, else numba
+    backend: str = "auto"                 # numba (CPU, align/numba_backend.py) | torch (the map's device, align/torch_backend.py) | auto: torch on CUDA, else numba
 
 
 @dataclass
