@@ -61,9 +61,9 @@ def step_errors(steps: dict, ref: np.ndarray, step: int) -> dict:
 
 def sensor_steps(path: Path, est: np.ndarray, frames: range, step: int) -> dict:
     """{f: the sensor's relative motion c2w_f^-1 c2w_f+step} for f in frames."""
+    from splat_core.align import align_to_map
     from splat_core.camera import backproject, invert_pose
     from splat_core.config import load_config
-    from splat_core.direct_align import align_to_map
     from splat_core.gaussians import GaussianMap
     from splat_core.io import open_capture
     from splat_core.loop.closer import verification_align

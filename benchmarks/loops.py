@@ -95,8 +95,8 @@ def real_rows(args, work: Path) -> list[dict]:
 
 
 def synthetic_rows(args) -> list[dict]:
+    from drifting_loop import run_drifting
     from splat_core.config import load_config
-    from splat_core.loop.evaluate import run_drifting
     from splat_core.synthetic import CorridorSource
     from splat_core.synthetic import LoopSource
 

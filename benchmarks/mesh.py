@@ -31,9 +31,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 sys.path.insert(0, str(ROOT))
 from common import machine  # noqa: E402
+from mesh_score import depth_points, score_against_points, score_against_scene  # noqa: E402
 
 from splat_core.camera import invert_pose  # noqa: E402
-from splat_core.export.evaluate import depth_points, score_against_points, score_against_scene  # noqa: E402
 from splat_core.export.mesh import build_mesh  # noqa: E402
 from splat_core.refine.run_data import load_run_data, open_run_capture  # noqa: E402
 

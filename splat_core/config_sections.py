@@ -22,7 +22,7 @@ KEYFRAME_SELECTIONS = get_args(KeyframeSelection)
 
 @dataclass
 class AlignConfig:
-    """tracking.align: the Gauss-Newton pre-alignment to the rendered map (direct_align.py)."""
+    """tracking.align: the Gauss-Newton pre-alignment to the rendered map (align/)."""
     iterations: int = setting(0, "Gauss-Newton iterations per pyramid level; 0 = no alignment", unit="iterations",
                               trades="more: slower tracking, converges from further away (cpu and gpu: 10)")
     levels: int = setting(3, "pyramid levels of the alignment", unit="levels",
@@ -35,8 +35,8 @@ class AlignConfig:
     stride: int = setting(1, "use every n-th live pixel in x and y at full resolution ...", unit="pixels",
                           trades="larger: faster alignment on fewer pixels (cpu: 4, gpu: 2)")
     min_points: int = setting(4096, "... but a smaller stride where that would leave fewer pixels", unit="pixels")
-    backend: AlignBackend = setting("auto", "numba (CPU, direct_align.py), torch (the map's device, "
-                                    "direct_align_torch.py), or auto: torch on CUDA, else numba")
+    backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
+                                    "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 
 
 @dataclass
@@ -68,7 +68,7 @@ class TrackingConfig:
                                           "before the pose has converged")
     outlier_factor: float | None = setting(None, "drop pixels whose depth error exceeds this x the median error "
                                            "(SplaTAM's optional rule); null = keep all")
-    align: AlignConfig = section(AlignConfig, "the Gauss-Newton pre-alignment to the rendered map (direct_align.py)")
+    align: AlignConfig = section(AlignConfig, "the Gauss-Newton pre-alignment to the rendered map (align/)")
     pixels: TrackingPixels = setting("all", "pixels of the tracking loss: all, or a few per tile chosen at random, "
                                      "by gradient or on depth edges (pixel_selection.py)",
                                      trades="sparse: far cheaper iterations on the CPU (cpu: random); gsplat draws "

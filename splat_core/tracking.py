@@ -6,7 +6,7 @@
 Three steps, each start pose a named `Candidate` with its loss and pixel count, compared by one
 rule (`beats`):
     align    Gauss-Newton alignment of the frame to the map rendered at the prediction
-             (direct_align.py; direct_align_torch.py on CUDA), optional (tracking.align)
+             (align.align_to_map: Numba on the host, torch on CUDA), optional (tracking.align)
     accept   keep the aligned pose only if SplaTAM's own loss agrees it beats the prediction
     polish   SplaTAM's Adam iterations on the 7 pose numbers (w2c quaternion + translation),
              coarse to fine (a stage with no iterations is skipped)
@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from .align import align_to_map
 from .camera import Intrinsics, pose_matrix, quat_to_rotmat_np, rotmat_to_quat, w2c_from_quat_trans
 from .config import TrackingConfig
-from .direct_align import align_to_map
 from .frame import resize_to
 from .gaussians import Gaussians
 from .pixel_selection import choose_pixels
@@ -193,13 +193,6 @@ def _keep_better(value, q, t, valid, best_loss, best_q, best_t, best_valid):
                 torch.where(better, t.detach(), best_t), torch.where(better, valid, best_valid))
 
 
-def align_backend(backend: str, device) -> str:
-    """tracking.align.backend resolved: auto is torch on CUDA (direct_align_torch.py), else numba."""
-    if backend == "auto":
-        return "torch" if torch.device(device).type == "cuda" else "numba"
-    return backend
-
-
 def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:
     """`step` (a block size or a stride), made smaller where one pixel per step x step block would
     leave fewer than min_count pixels of the image (small working resolutions track densely)."""
@@ -207,11 +200,12 @@ def sparse_step(step: int, intr: Intrinsics, min_count: float) -> int:
 
 
 def align_options(config: TrackingConfig, intr: Intrinsics, near: float, **override) -> dict:
-    """Keyword arguments of direct_align.align_to_map from the tracking settings (`override` wins)."""
+    """Keyword arguments of align.align_to_map (backend included) from the tracking settings
+    (`override` wins)."""
     a = config.align
-    options = dict(levels=a.levels, iterations=a.iterations, passes=a.passes, color_weight=a.color_weight,
-                   silhouette=config.silhouette_threshold, near=near, depth_noise=a.depth_noise,
-                   live_stride=sparse_step(a.stride, intr, a.min_points))
+    options = dict(backend=a.backend, levels=a.levels, iterations=a.iterations, passes=a.passes,
+                   color_weight=a.color_weight, silhouette=config.silhouette_threshold, near=near,
+                   depth_noise=a.depth_noise, live_stride=sparse_step(a.stride, intr, a.min_points))
     return {**options, **override}
 
 
@@ -260,13 +254,10 @@ class Tracker:
 
     # -------------------------------------------------------------- helpers
     def align(self, g: Gaussians, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray):
-        """The Gauss-Newton alignment (tracking.align) from w2c, by the configured backend."""
-        a = self.config.align
-        options = align_options(self.config, self.intrinsics, self.renderer.near)
-        if align_backend(a.backend, self.device) == "torch":
-            from .direct_align_torch import align_to_map_torch
-            return align_to_map_torch(g, color, depth, self.intrinsics, w2c, **options)
-        return align_to_map(g, color, depth, self.intrinsics, w2c, **options)
+        """The Gauss-Newton alignment (tracking.align) from w2c, by the configured backend (auto:
+        torch for a map on CUDA, else Numba)."""
+        return align_to_map(g, color, depth, self.intrinsics, w2c,
+                            **align_options(self.config, self.intrinsics, self.renderer.near))
 
     def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:
         """The Gaussians that can appear in the frame (with a margin for the motion to come)."""

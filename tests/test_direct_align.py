@@ -1,4 +1,4 @@
-"""The direct alignment (direct_align.py): Jacobians against finite differences, noise weighting, large offsets."""
+"""The direct alignment (align/numba_backend.py): Jacobians against finite differences, noise weighting, large offsets."""
 
 from __future__ import annotations
 
@@ -15,14 +15,14 @@ from helpers.engine import map_from_frame, rel_w2c, small_source
 
 def _aligned_level(frame):
     """A pyramid level whose 'rendering' is the frame's own depth and grey levels."""
-    from splat_core.direct_align import _grey, _Level
+    from splat_core.align.numba_backend import _grey, _Level
     valid = frame.depth > 0
     return _Level(frame.intrinsics, frame.depth.astype(np.float64), _grey(frame.color.astype(np.float64)), valid,
                   frame.depth.astype(np.float64), _grey(frame.color.astype(np.float64)))
 
 
 def test_direct_alignment_jacobians_match_finite_differences():
-    from splat_core.direct_align import _linearise, _se3_exp
+    from splat_core.align.numba_backend import _linearise, _se3_exp
     f0 = small_source(n=1, w=80, h=60)[0]
     lvl = _aligned_level(f0)
     i = lvl.intr
@@ -54,7 +54,7 @@ def test_direct_alignment_jacobians_match_finite_differences():
 
 def _align_frame_to_frame(seed: int, depth_noise: bool) -> float:
     """Translation error (mm) of frame 2 (depth noise 3 mm x z^2) aligned to frame 0's exact depth."""
-    from splat_core.direct_align import _gauss_newton_step, _grey, _Level
+    from splat_core.align.numba_backend import _gauss_newton_step, _grey, _Level
     f0 = SyntheticSource(n_frames=3, width=160, height=120, seed=seed)[0]
     f2 = SyntheticSource(n_frames=3, width=160, height=120, seed=seed, noise=0.003)[2]
     d0, d2 = f0.depth.astype(np.float64), f2.depth.astype(np.float64)
@@ -75,7 +75,7 @@ def test_depth_noise_weighting_helps_when_far_depth_is_noisy():
 
 
 def test_direct_alignment_recovers_a_large_offset():
-    from splat_core.direct_align import align_to_map
+    from splat_core.align.numba_backend import align_to_map
     # Seed 0's scene: on seed 3's, 60 mapping iterations at 160x120 leave the map's depth biased
     # (the alignment then lands 1-1.5 cm off; 200 iterations bring it back to 0.3 cm).
     src = SyntheticSource(n_frames=4, width=160, height=120, seed=0)
@@ -95,7 +95,7 @@ def test_direct_alignment_recovers_a_large_offset():
 
 
 def test_direct_alignment_keeps_the_start_when_the_map_is_out_of_view():
-    from splat_core.direct_align import align_to_map
+    from splat_core.align.numba_backend import align_to_map
     f0 = small_source(n=1, w=64, h=48)[0]
     m = map_from_frame(f0)
     away = pose_matrix(quat_to_rotmat_np([0.0, 0.0, 1.0, 0.0]), (0.0, 0.0, 0.0))   # looking backwards

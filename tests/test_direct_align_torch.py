@@ -1,4 +1,4 @@
-"""The direct alignment in torch (direct_align_torch.py) against the Numba version (direct_align.py),
+"""The direct alignment in torch (align/torch_backend.py) against the Numba version (align/numba_backend.py),
 on CPU tensors in float64: the pyramid's resizes against OpenCV, the normal equations and the step
 on the same level, the whole alignment on the same map; and convergence to an exact known pose."""
 
@@ -9,14 +9,15 @@ import numpy as np
 import pytest
 import torch
 
-from splat_core import direct_align as nb
-from splat_core import direct_align_torch as tt
+from splat_core.align import numba_backend as nb
+from splat_core.align import resolve_backend
+from splat_core.align import torch_backend as tt
 from splat_core.camera import Intrinsics
 from splat_core.config import DensifyConfig, load_config
 from splat_core.densify import gaussians_from_pixels
 from splat_core.frame import resize_to
 from splat_core.synthetic import SyntheticSource
-from splat_core.tracking import Tracker, align_backend
+from splat_core.tracking import Tracker
 from splat_core.render import Renderer
 
 
@@ -188,8 +189,10 @@ def test_gauss_newton_converges_to_an_exact_known_pose():
 # ----------------------------------------------------------------------------- the tracker's choice
 
 def test_tracker_uses_the_configured_backend():
-    assert align_backend("auto", "cpu") == "numba" and align_backend("auto", "cuda") == "torch"
-    assert align_backend("torch", "cpu") == "torch"
+    assert resolve_backend("auto", "cpu") == "numba" and resolve_backend("auto", "cuda") == "torch"
+    assert resolve_backend("torch", "cpu") == "torch"
+    with pytest.raises(ValueError):
+        resolve_backend("opencv", "cpu")
     _, f0, f2 = _frames(80, 60)
     results = {}
     for backend in ("numba", "torch"):
@@ -198,3 +201,17 @@ def test_tracker_uses_the_configured_backend():
         results[backend] = tracker.align(_map(f0), f2.color, f2.depth, np.eye(4))
     assert np.allclose(results["torch"].w2c, results["numba"].w2c, rtol=0, atol=1e-9)
     assert np.abs(results["torch"].w2c - np.eye(4)).max() > 1e-3       # it moved: a real alignment
+
+
+def test_the_front_door_runs_the_chosen_backend_unchanged():
+    # align.align_to_map only picks: its result is each backend's own, bit for bit.
+    from splat_core.align import align_to_map
+    _, f0, f2 = _frames(80, 60)
+    g = _map(f0)
+    options = dict(iterations=5, passes=2, live_stride=2)
+    numba = nb.align_to_map(g, f2.color, f2.depth, f2.intrinsics, np.eye(4), **options)
+    torch_ = tt.align_to_map_torch(g, f2.color, f2.depth, f2.intrinsics, np.eye(4), **options)
+    for backend, expected in (("auto", numba), ("numba", numba), ("torch", torch_)):
+        out = align_to_map(g, f2.color, f2.depth, f2.intrinsics, np.eye(4), backend=backend, **options)
+        assert np.array_equal(out.w2c, expected.w2c) and out.correspondences == expected.correspondences, backend
+        assert torch.equal(out.first_render.depth, expected.first_render.depth)

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 import torch
 
-from splat_core import direct_align_torch as tt
+from splat_core.align import torch_backend as tt
 from splat_core.camera import Intrinsics
 from splat_core.config import MappingConfig, TrackingConfig, load_config
 from splat_core.gaussians import GaussianMap

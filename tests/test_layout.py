@@ -1,5 +1,6 @@
-"""The layout's rules, checked on the source: no import circles, the engine never imports the app
-or viser, and modules stay small (the Numba kernels excepted)."""
+"""The layout's rules, checked on the source: no import circles (between modules, and between the
+engine's subpackages and its root modules), the engine never imports the app or viser, the product
+never imports a benchmark or test harness, and modules stay small (the Numba kernels excepted)."""
 
 from __future__ import annotations
 
@@ -74,6 +75,28 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return out
 
 
+def unit(name: str, known: dict) -> str:
+    """An engine module's place in the package view: its subpackage (splat_core.loop.verify ->
+    splat_core.loop), or the module itself at the root (splat_core.slam)."""
+    parts = name.split(".")
+    is_package = name in known and known[name].name == "__init__.py"
+    return ".".join(parts[:2]) if len(parts) > 2 or (len(parts) == 2 and is_package) else name
+
+
+def package_graph(graph: dict[str, set[str]], known: dict) -> dict[str, set[str]]:
+    """The engine's import graph with each subpackage collapsed to one node."""
+    out: dict[str, set[str]] = {}
+    for name, imported in graph.items():
+        if name.startswith("splat_core."):
+            here = unit(name, known)
+            out.setdefault(here, set()).update(unit(i, known) for i in imported
+                                               if i.startswith("splat_core.") and unit(i, known) != here)
+    for targets in list(out.values()):
+        for t in targets:
+            out.setdefault(t, set())
+    return out
+
+
 def test_no_import_circles():
     known = modules()
     graph = {m: imports_of(m, f, known) for m, f in known.items()}
@@ -82,6 +105,38 @@ def test_no_import_circles():
 
 def test_the_cycle_finder_finds_a_circle():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+
+
+def test_no_import_circles_between_the_engines_packages():
+    """Nothing imports up the graph: a subpackage that a root module uses (render/, loop/, align/)
+    never imports that root module back, not even from a module the root one never loads."""
+    known = modules()
+    graph = {m: imports_of(m, f, known) for m, f in known.items()}
+    assert cycles(package_graph(graph, known)) == []
+
+
+def test_the_package_view_finds_an_upward_import():
+    # loop/evaluate.py (a harness then in the product) imported slam.py, which imports loop/: no
+    # circle between modules, one between slam and its loop package.
+    graph = {"splat_core.slam": {"splat_core.loop.closer"}, "splat_core.loop.closer": set(),
+             "splat_core.loop.evaluate": {"splat_core.slam"}}
+    known = {name: Path(name.replace(".", "/") + ".py") for name in graph}
+    assert cycles(graph) == []
+    assert cycles(package_graph(graph, known)) == [["splat_core.loop", "splat_core.slam"]]
+
+
+def test_the_product_imports_no_harness():
+    """Benchmark and test helpers (benchmarks/*.py, tests/helpers/) stay out of splat_core and app."""
+    harnesses = {f.stem for f in (ROOT / "benchmarks").glob("*.py")} | {"benchmarks", "tests", "helpers", "conftest"}
+    for name, path in modules().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                tops = {a.name.split(".")[0] for a in node.names}
+            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                tops = {node.module.split(".")[0]}
+            else:
+                continue
+            assert not tops & harnesses, (name, tops & harnesses)
 
 
 def test_the_engine_imports_neither_the_app_nor_viser():

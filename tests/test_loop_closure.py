@@ -149,7 +149,7 @@ SMALL = {"resolution": [128, 96], "checkpoint_every": 10, "eval_every": 100,
 
 @pytest.mark.slow
 def test_drifting_loop_is_closed_and_pulled_back():
-    from splat_core.loop.evaluate import run_drifting
+    from drifting_loop import run_drifting  # benchmarks/drifting_loop.py
     from splat_core.synthetic import LoopSource
 
     source = LoopSource(n_frames=40, width=128, height=96, overlap=0.3)
@@ -166,7 +166,7 @@ def test_drifting_loop_is_closed_and_pulled_back():
 @pytest.mark.slow
 def test_no_loop_on_a_corridor_that_never_returns():
     from splat_core.synthetic import CorridorSource
-    from splat_core.loop.evaluate import run_drifting
+    from drifting_loop import run_drifting  # benchmarks/drifting_loop.py
 
     source = CorridorSource(n_frames=60, width=128, height=96, speed=4.0)
     run = run_drifting(source, load_config("cpu", SMALL), True, 0.0, 0.0)

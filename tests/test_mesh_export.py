@@ -13,11 +13,12 @@ import trimesh
 from app.cli import splatam_main
 from splat_core.camera import invert_pose
 from splat_core.config import load_config
-from splat_core.export.evaluate import depth_points, scene_surface_distance, score_against_scene
 from splat_core.export.mesh import build_mesh, extract_mesh, fuse_views
 from splat_core.run import Pipeline
 from splat_core.refine.run_data import load_run_data
 from splat_core.synthetic import SyntheticSource
+
+from mesh_score import depth_points, scene_surface_distance, score_against_scene  # benchmarks/, on sys.path via conftest
 
 RUN_CONFIG = """base: cpu
 resolution: [128, 96]

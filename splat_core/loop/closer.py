@@ -42,9 +42,11 @@ from .verify import pose_difference, verify
 
 def verification_align(view: SlamView) -> dict:
     """The tracker's alignment settings with a longer reach (at least 10 iterations per level, two
-    renders): verification aligns from RANSAC's pose, farther off than a tracking prediction."""
+    renders): verification aligns from RANSAC's pose, farther off than a tracking prediction.
+    It aligns on the host (the Numba backend) whatever tracking.align.backend says."""
     tc = view.config.tracking
-    return align_options(tc, view.intrinsics, view.near, iterations=max(10, tc.align.iterations), passes=2)
+    return align_options(tc, view.intrinsics, view.near, iterations=max(10, tc.align.iterations), passes=2,
+                         backend="numba")
 
 
 class LoopClosure:

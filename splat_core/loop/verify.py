@@ -7,7 +7,7 @@
        Where RANSAC finds too little but the map says the old part is in view (detect.py's
        `visible`), the alignment starts from the tracked pose instead, and may move it by at most
        max_disagreement (the alignment's reach).
-    2. The tracker's own alignment (direct_align.py: point-to-plane depth, Gauss-Newton, coarse to
+    2. The tracker's own alignment (align/: point-to-plane depth, Gauss-Newton, coarse to
        fine) of the current frame against the *old* part of the map (Gaussians born at least
        min_gap frames before), rendered from the pose RANSAC found. The old map must explain a
        large share of the frame's depth with a small residual, and the alignment must land where
@@ -25,9 +25,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..align import align_to_map
 from ..camera import Intrinsics, invert_pose
 from ..config import LoopClosureConfig
-from ..direct_align import align_to_map
 from ..gaussians import Gaussians
 from .detect import Features, match
 

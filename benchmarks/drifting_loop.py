@@ -1,7 +1,8 @@
 """Run SplaTAM on a synthetic loop with drifting odometry, with or without loop closure, and measure
 ATE and the map's depth error against the noise-free depth at every 10th frame's estimated pose
 (its mean over pixels, which the tails of doubled surfaces and depth edges dominate, and its
-median). Used by benchmarks/loops.py and the tests."""
+median). Used by benchmarks/loops.py and tests/test_loop_closure.py (benchmarks/ is on their
+sys.path); a harness around the engine, so it lives here rather than in splat_core."""
 
 from __future__ import annotations
 
@@ -11,11 +12,11 @@ import time
 import numpy as np
 import torch
 
-from .. import metrics as M
-from ..camera import invert_pose
-from ..config import Config
-from ..slam import SplaTAM
-from ..synthetic.loop import DriftingOdometry
+from splat_core import metrics as M
+from splat_core.camera import invert_pose
+from splat_core.config import Config
+from splat_core.slam import SplaTAM
+from splat_core.synthetic.loop import DriftingOdometry
 
 
 def run_drifting(source, config: Config, loop_closure: bool, bias_m: float, bias_deg: float,

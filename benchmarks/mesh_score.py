@@ -5,13 +5,14 @@ completion  fraction of the truth's observed surface points within `threshold` (
 
 `scene_surface_distance(scene, points)` is the exact distance from world points to the nearest
 surface of a `synthetic.SyntheticScene` (room faces, boxes, spheres).
+Used by benchmarks/mesh.py and tests/test_mesh_export.py (benchmarks/ is on their sys.path).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..camera import Intrinsics, backproject
+from splat_core.camera import Intrinsics, backproject
 
 COMPLETION_THRESHOLD = 0.02
 
@@ -24,7 +25,7 @@ def _box_surface_distance(p: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.n
 
 def scene_surface_distance(scene, points: np.ndarray) -> np.ndarray:
     """Distance (m) from each world point (N x 3) to the nearest surface of the synthetic scene."""
-    from ..synthetic import Box
+    from splat_core.synthetic import Box
 
     p = np.asarray(points, np.float64).reshape(-1, 3)
     best = _box_surface_distance(p, scene.lo, scene.hi)

@@ -1,4 +1,5 @@
-"""Direct alignment of a frame to the rendered map: a Gauss-Newton pose initialiser for tracking.
+"""Direct alignment of a frame to the rendered map: a Gauss-Newton pose initialiser for tracking
+(the Numba backend of `align/`; `torch_backend.py` is the same solve on the map's device).
 
 SplaTAM tracks by running Adam on the pose for 40-200 iterations, each one a render and a
 backward pass. A 2-core CPU affords about ten. Adam's steps have a fixed size (the learning
@@ -15,8 +16,8 @@ Gauss-Newton, the way dense RGB-D odometry does, but frame-to-model:
 Only rendered pixels with silhouette > `silhouette` are used, the same rule as the tracking
 loss. Robust (Huber) weights apply. The solve runs coarse to fine over an image pyramid.
 The map renders again at the solved pose for `passes` > 1, so a large motion is re-linearised.
-`SplaTAM._track` keeps the result only where SplaTAM's own tracking loss per pixel agrees
-(lower than at the prediction), then polishes it with a few Adam iterations (tracking.py).
+The tracker (tracking.py) keeps the result only where SplaTAM's own tracking loss per pixel agrees
+(lower than at the prediction), then polishes it with a few Adam iterations.
 
 With `depth_noise`, each depth residual is divided by the sensor's axial noise at the live
 point's depth, sigma(z) = 1.2 mm + 1.9 mm (z - 0.4 m)^2 (a Kinect v1 / structured-light model,
@@ -32,10 +33,10 @@ import cv2
 import numba
 import numpy as np
 
-from .camera import Intrinsics, backproject, invert_pose
-from .frame import resize_to
-from .gaussians import Gaussians
-from .render import Render, render
+from ..camera import Intrinsics, backproject, invert_pose
+from ..frame import resize_to
+from ..gaussians import Gaussians
+from ..render import Render, render
 
 
 @dataclass

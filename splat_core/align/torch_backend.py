@@ -1,4 +1,4 @@
-"""Direct alignment of a frame to the rendered map in torch: `direct_align.py` on the map's device.
+"""Direct alignment of a frame to the rendered map in torch: `numba_backend.py` on the map's device.
 
 The same Gauss-Newton pose initialiser as the Numba version (point-to-plane depth + grey levels,
 Huber weights, an image pyramid, `passes` renders), with the same numbers in float64: the pyramid
@@ -27,10 +27,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .camera import Intrinsics
+from ..camera import Intrinsics
+from ..render import render
 from .cv_torch import _on, erode3, resize_nearest, resize_smooth, sobel  # noqa: F401 (the pyramid's operations)
-from .direct_align import AlignResult
-from .render import render
+from .numba_backend import AlignResult
 
 GREY = (0.299, 0.587, 0.114)
 
@@ -51,7 +51,7 @@ def backproject_t(depth: torch.Tensor, intr: Intrinsics) -> torch.Tensor:
 
 
 def normals(points: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """direct_align._normals in torch."""
+    """numba_backend._normals in torch."""
     n = torch.zeros_like(points)
     dx = points[1:-1, 2:] - points[1:-1, :-2]
     dy = points[2:, 1:-1] - points[:-2, 1:-1]
@@ -69,7 +69,7 @@ def normals(points: torch.Tensor, valid: torch.Tensor) -> tuple[torch.Tensor, to
 
 
 def se3_exp(xi: torch.Tensor) -> torch.Tensor:
-    """direct_align._se3_exp in torch (no branch on the host)."""
+    """numba_backend._se3_exp in torch (no branch on the host)."""
     v, w = xi[:3], xi[3:]
     theta = torch.linalg.norm(w)
     zero = torch.zeros_like(w[0])
@@ -94,7 +94,7 @@ def invert_pose_t(T: torch.Tensor) -> torch.Tensor:
 # ----------------------------------------------------------------------------- one pyramid level
 
 class LevelT:
-    """direct_align._Level in torch: the model arrays of one level, and the live points as a fixed
+    """numba_backend._Level in torch: the model arrays of one level, and the live points as a fixed
     grid (every live_stride-th pixel) with a validity mask instead of the selected pixels."""
 
     def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid, live_depth, live_grey,
@@ -117,7 +117,7 @@ class LevelT:
 
     @classmethod
     def from_numpy(cls, level) -> "LevelT":
-        """A torch level holding exactly a direct_align._Level's arrays (tests)."""
+        """A torch level holding exactly a numba_backend._Level's arrays (tests)."""
         self = cls.__new__(cls)
         t = torch.as_tensor
         self.intr = level.intr
@@ -130,7 +130,7 @@ class LevelT:
 
 
 def linearise(level: LevelT, X: torch.Tensor, max_distance: float):
-    """direct_align._linearise for every live point at once: (r_d, J_d, ok_d, r_c, J_c, ok_c),
+    """numba_backend._linearise for every live point at once: (r_d, J_d, ok_d, r_c, J_c, ok_c),
     residuals and Jacobian rows zero where not ok."""
     i = level.intr
     height, width = level.model_ok.shape
@@ -190,7 +190,7 @@ def masked_median(values: torch.Tensor, ok: torch.Tensor, count: torch.Tensor) -
 
 
 def huber_normal_equations(r, J, ok, count, floor: float, weight: float):
-    """direct_align._huber_normal_equations over the ok entries (the others weigh 0)."""
+    """numba_backend._huber_normal_equations over the ok entries (the others weigh 0)."""
     absr = r.abs()
     sigma = torch.clamp(1.4826 * masked_median(absr, ok, count), min=floor)
     w = weight * torch.clamp(1.345 * sigma / torch.clamp(absr, min=1e-12), max=1.0) / sigma ** 2
@@ -200,7 +200,7 @@ def huber_normal_equations(r, J, ok, count, floor: float, weight: float):
 
 def normal_equations(level: LevelT, X: torch.Tensor, color_weight: float, max_distance: float,
                      depth_noise: bool = False):
-    """(H, g, depth residual count, depth rmse) of one Gauss-Newton step at X (as direct_align)."""
+    """(H, g, depth residual count, depth rmse) of one Gauss-Newton step at X (as numba_backend)."""
     r_d, J_d, ok_d, r_c, J_c, ok_c = linearise(level, X, max_distance)
     if depth_noise:
         s = _noise(1.0) / _noise(level.live_points[:, 2])
@@ -218,7 +218,7 @@ def normal_equations(level: LevelT, X: torch.Tensor, color_weight: float, max_di
 
 def gauss_newton_step(level: LevelT, X: torch.Tensor, color_weight: float, max_distance: float,
                       depth_noise: bool = False):
-    """direct_align._gauss_newton_step: (dX, count, rmse) as device tensors (identity, count, inf
+    """numba_backend._gauss_newton_step: (dX, count, rmse) as device tensors (identity, count, inf
     under 50 depth residuals)."""
     H, g, count, rmse = normal_equations(level, X, color_weight, max_distance, depth_noise)
     eye6 = torch.eye(6, dtype=H.dtype, device=H.device)
@@ -240,7 +240,7 @@ def align_to_map_torch(gaussians, color, depth, intr: Intrinsics, w2c_init, *, l
                        iterations: int = 10, passes: int = 1, color_weight: float = 1.0,
                        silhouette: float = 0.99, near: float = 0.01, max_distance: float = 0.1,
                        depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None) -> AlignResult:
-    """direct_align.align_to_map on the device of `gaussians` (colour H x W x 3 and depth H x W:
+    """numba_backend.align_to_map on the device of `gaussians` (colour H x W x 3 and depth H x W:
     numpy arrays or tensors). sync: let the host stop converged loops early (default: on the CPU)."""
     device = gaussians.means.device
     sync = device.type != "cuda" if sync is None else sync
