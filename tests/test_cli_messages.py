@@ -60,3 +60,15 @@ def test_access_rules():
     view = Access.for_host("127.0.0.1", share="view")                 # view-only needs tokens anywhere
     assert view.required and view.token_for("view") != view.token_for("control")
     assert Access.for_host("0.0.0.0", token="my-own-token").token_for("control") == "my-own-token"
+
+
+def test_batch_help_names_the_default_preset_run_uses(capsys):
+    import torch
+
+    from app.run_setup import default_config_name
+
+    with pytest.raises(SystemExit):
+        splatam_main(["batch", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    gpu, cpu = default_config_name(torch.device("cuda")), default_config_name(torch.device("cpu"))
+    assert f"{cpu} on a CPU, {gpu} on a GPU" in help_text and "splatam on a GPU" not in help_text

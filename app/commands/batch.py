@@ -16,7 +16,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "relative paths from the file's folder)")
     p.add_argument("--out", required=True, metavar="DIR", help="batch folder: DIR/<capture name>/ run folders, "
                    "DIR/summary.csv|json|md, DIR/index.html")
-    p.add_argument("--config", default=None, help="as splatam run --config (default: cpu on a CPU, splatam on a GPU)")
+    p.add_argument("--config", default=None, help="as splatam run --config (default: as splatam run: cpu on a CPU, gpu on a GPU)")
     p.add_argument("--engine", default="sequential", choices=["sequential", "live"], help="as splatam run (default sequential)")
     p.add_argument("--resolution", default=None, metavar="WxH|L|native", help="as splatam run --resolution")
     p.add_argument("--max-frames", type=int, default=None, help="process at most N frames of each capture")

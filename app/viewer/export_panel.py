@@ -24,7 +24,7 @@ from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
           "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page",
-          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
+          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (TSDF of a finished run)"}
 
 STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
                "starting": "Exports the map as it is now; SLAM keeps running.",
@@ -48,7 +48,7 @@ class ExportPanel:
         with gui.add_folder("Export", order=order):
             self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in self.formats),
                                            initial_value=LABELS[FORMATS[0]],
-                                           hint="The map in a splat format, or the estimated trajectory")
+                                           hint=format_hint(self.formats))
             self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD,
                                          hint=f"Downloads the file and writes it {where}")
             self.note = gui.add_markdown(STATE_NOTES["running"])
@@ -110,6 +110,16 @@ class ExportPanel:
         finally:
             self.button.disabled = False
             self._busy.release()
+
+
+def format_hint(formats) -> str:
+    """The Format dropdown's hint, naming every kind of file it offers."""
+    kinds = ["The map (a splat file or a standalone .html page)"]
+    if "trajectory" in formats:
+        kinds.append("the estimated trajectory (TUM)")
+    if "mesh" in formats:
+        kinds.append("a mesh of a finished run (TSDF of its keyframes)")
+    return kinds[0] if len(kinds) == 1 else ", ".join(kinds[:-1]) + " or " + kinds[-1]
 
 
 def trajectory_bytes(snap) -> bytes:

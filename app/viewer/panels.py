@@ -52,7 +52,7 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
     return "  \n".join(lines)
 
 
-STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused (Resume or Step to go on)",
+STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused",
                "finished": "**finished**: the run folder is written", "stopped": "stopped: the run folder is written",
                "error": "**error**"}
 
@@ -122,9 +122,11 @@ class Panels:
             self.pause_button = cgui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE, visible=has_controls,
                                                 hint="Pause SLAM after this frame (for every visitor)")
             self.resume_button = cgui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY,
-                                                 visible=has_controls, disabled=True)
+                                                 visible=has_controls, disabled=True,
+                                                 hint="Go on with SLAM (for every visitor)")
             self.step_button = cgui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT,
-                                               visible=has_controls, disabled=True)
+                                               visible=has_controls, disabled=True,
+                                               hint="Process the next frame, then pause again (for every visitor)")
             self.map_updates = cgui.add_dropdown(
                 "Map updates", MAP_UPDATE_POLICIES, initial_value=map_updates, visible=has_controls,
                 hint="When the 3D view (splats, current camera, trajectory) follows SLAM: at each "

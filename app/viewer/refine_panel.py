@@ -44,7 +44,7 @@ class RefinePanel:
                                          hint="Optimise the finished map over all keyframes (as splatam refine); "
                                               "the page shows it sharpening")
             self.progress = gui.add_progress_bar(0.0, animated=False, visible=False)
-            self.info = gui.add_markdown("Refine the finished map over all keyframes (needs a run folder).")
+            self.info = gui.add_markdown(idle_note("starting", None))
         self.button.on_click(lambda _: self.start())
         self._run_dir: Path | None = None
         self._stop = threading.Event()
@@ -69,6 +69,10 @@ class RefinePanel:
         disabled = run_dir is None or self.running
         if self.button.disabled != disabled:
             self.button.disabled = disabled
+        if self.thread is None:              # before any job: the note says what Refine will do, or when
+            note = idle_note(snap.state, run_dir)
+            if self.info.content != note:
+                self.info.content = note
 
     # ------------------------------------------------------------------ the job
     def start(self) -> bool:
@@ -130,6 +134,19 @@ class RefinePanel:
         self._stop.set()
         if self.thread is not None:
             self.thread.join(timeout)
+
+
+def idle_note(state: str, run_dir: Path | None) -> str:
+    """The panel's note before a job: what Refine writes, or why it is not offered yet."""
+    from splat_core.run.run_folder import REFINED_MAP
+
+    if run_dir is not None:
+        return f"Refine the finished map over all keyframes; writes `{run_dir / REFINED_MAP}`."
+    if state in ("starting", "running", "paused"):
+        return "Refine the map over all keyframes once SLAM has finished writing the run folder."
+    if state == "browse":
+        return "Refining needs a run folder (its keyframes): open one with `splatam-viewer --open RUN_DIR`."
+    return "Refine is offered for a run that has finished."
 
 
 def summary_markdown(section: dict) -> str:
