@@ -48,6 +48,7 @@ class RefinePanel:
         self.button.on_click(lambda _: self.start())
         self._run_dir: Path | None = None
         self._stop = threading.Event()
+        self._note_lock = threading.Lock()  # the idle note is never written over a started job's words
         self.thread: threading.Thread | None = None
         self.result: dict | None = None      # the metrics.json refine section once done
         self.error: str | None = None
@@ -69,10 +70,11 @@ class RefinePanel:
         disabled = run_dir is None or self.running
         if self.button.disabled != disabled:
             self.button.disabled = disabled
-        if self.thread is None:              # before any job: the note says what Refine will do, or when
-            note = idle_note(snap.state, run_dir)
-            if self.info.content != note:
-                self.info.content = note
+        with self._note_lock:
+            if self.thread is None:          # before any job: the note says what Refine will do, or when
+                note = idle_note(snap.state, run_dir)
+                if self.info.content != note:
+                    self.info.content = note
 
     # ------------------------------------------------------------------ the job
     def start(self) -> bool:
@@ -83,8 +85,9 @@ class RefinePanel:
         self.progress.value, self.progress.visible = 0.0, True
         self.result = self.error = None
         self._stop.clear()
-        self.thread = threading.Thread(target=self._run, name="refine", daemon=True,
-                                       args=(self._run_dir, int(self.iterations.value), self.resolution.value))
+        with self._note_lock:
+            self.thread = threading.Thread(target=self._run, name="refine", daemon=True,
+                                           args=(self._run_dir, int(self.iterations.value), self.resolution.value))
         self.thread.start()
         return True
 
