@@ -45,8 +45,8 @@ def nice_ticks(lo: float, hi: float, target: int = 4) -> np.ndarray:
 
 
 def tick_labels(ticks: np.ndarray) -> list[str]:
-    """Labels that tell the ticks apart with as few digits as they need: 0.0005 as "5e-4" below
-    1e-3 spacing or above 1e5, otherwise fixed-point ("0.025", "12.5", "1500")."""
+    """Labels that tell the ticks apart with as few digits as they need: exponents for a spacing
+    below 1e-3 or values from 1e5 ("5.0e-4", "1.5e-3", "2e5"), otherwise fixed-point ("0.025", "12.5", "1500")."""
     step = float(ticks[1] - ticks[0]) if len(ticks) > 1 else 1.0
     biggest = float(np.max(np.abs(ticks)))
     if step < 1e-3 or biggest >= 1e5:
