@@ -45,13 +45,18 @@ def _run(module_name: str, args: argparse.Namespace) -> int:
 
 def parse_or_suggest(parser: argparse.ArgumentParser, argv, subparsers: dict | None = None):
     """parse_args, but an unknown option is reported by the subcommand's own parser (its usage) with the
-    closest option it has ("did you mean --max-frames?"), before any complaint about missing ones."""
+    closest option it has ("did you mean --max-frames?"), before any complaint about missing ones; an
+    unknown subcommand in one line with the closest one ("did you mean run?"), exit status 2."""
     import difflib
 
     words = list(sys.argv[1:] if argv is None else argv)
     target = parser
     if subparsers:
         name = next((w for w in words if not w.startswith("-")), None)
+        if name is not None and name not in subparsers:
+            close = difflib.get_close_matches(name, subparsers, n=1, cutoff=0.5)
+            parser.exit(2, f"{parser.prog}: unknown command {name!r}: "
+                           + (f"did you mean {close[0]}?\n" if close else f"expected one of {', '.join(subparsers)}\n"))
         target = subparsers.get(name, parser)
     options = [o for action in target._actions for o in action.option_strings]
     unknown = [w for w in words if w.startswith("--") and w != "--"

@@ -22,6 +22,8 @@ from pathlib import Path
 from splat_core.config import describe_default_presets
 from splat_core.errors import InputError
 
+from .console_commands import command
+
 STREAM = "nerfcapture://"
 
 
@@ -167,7 +169,8 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
         # first checkpoint (only checkpoint/keyframes.bin) holds nothing worth keeping
         folder = RunFolder(out)
         if not resume and (folder.has_checkpoint() or folder.is_finished()):
-            raise InputError(f"{out}: already holds a run; choose another --out (or continue it: splatam run --resume)")
+            raise InputError(f"{out}: already holds a run; choose another --out "
+                             f"(or continue it: {command('splatam')} run --resume)")
     if input_path == "synthetic":
         input_path = None
     dev = resolve_device(device)

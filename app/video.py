@@ -17,7 +17,10 @@ import numpy as np
 
 from splat_core.errors import InputError
 
-INSTALL_HINT = "pip install 'splatam-viewer[video]' (or: pip install imageio-ffmpeg)"
+from .console_commands import pip_install
+
+def install_hint() -> str:
+    return f"{pip_install('splatam-viewer[video]')} (or: {pip_install('imageio-ffmpeg')})"
 
 
 class Cancelled(Exception):
@@ -83,7 +86,7 @@ def _ffmpeg():
     try:
         import imageio_ffmpeg
     except ImportError:
-        raise InputError(f"writing an MP4 needs imageio-ffmpeg: {INSTALL_HINT}") from None
+        raise InputError(f"writing an MP4 needs imageio-ffmpeg: {install_hint()}") from None
     return imageio_ffmpeg
 
 

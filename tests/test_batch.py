@@ -104,7 +104,8 @@ def test_without_dask_one_line_and_exit_2(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "distributed", None)      # import distributed -> ImportError
     code = splatam_main(["batch", str(tmp_path), "--out", str(tmp_path / "out")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and err == ["error: splatam batch needs Dask: pip install 'splatam-viewer[batch]'"]
+    from app.console_commands import pip_install
+    assert code == 2 and err == [f"error: splatam batch needs Dask: {pip_install('splatam-viewer[batch]')}"]
 
 
 def test_bad_options_exit_2(tmp_path, capsys):

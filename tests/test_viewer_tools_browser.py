@@ -110,3 +110,40 @@ def test_measure_video_and_export_in_the_page(browser, server, tmp_path):  # noq
         page.close()
     finally:
         app.close()
+
+
+def test_each_page_chooses_its_own_export_format(browser, server, tmp_path):  # noqa: F811
+    """Choosing .spz on one page leaves another page (and a new one) at .ply; each page's button
+    exports what that page chose."""
+    from app.viewer import StaticSource, build_viewer
+    from app.viewer.export_panel import LABELS
+
+    app = build_viewer(server, StaticSource(snapshot_of(two_walls())), export_dir=tmp_path, render_backend="cpu")
+
+    def open_page():
+        page = browser.new_page(viewport={"width": 900, "height": 700}, accept_downloads=True)
+        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.get_by_label("Format").wait_for(timeout=60_000)
+        return page
+
+    def exported(page) -> str:
+        with page.expect_download(timeout=60_000) as download:
+            page.get_by_role("button", name="Export and download").click()
+        return download.value.suggested_filename
+
+    try:
+        first, second = open_page(), open_page()
+        first.get_by_label("Format").click()
+        first.get_by_role("option", name=LABELS["spz"]).click()
+        wait_until(lambda: "spz" in {app.export_panel.selected_format(c) for c in app.control_gui.clients},
+                   20, what="the first page's choice reaches the server")
+        assert exported(first) == "map.spz"
+        assert second.get_by_label("Format").input_value() == LABELS["ply"]
+        assert exported(second) == "map.ply"
+        third = open_page()
+        assert third.get_by_label("Format").input_value() == LABELS["ply"]
+        assert first.get_by_label("Format").input_value() == LABELS["spz"]
+        for page in (first, second, third):
+            page.close()
+    finally:
+        app.close()

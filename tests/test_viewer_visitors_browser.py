@@ -1,4 +1,4 @@
-"""The viewer as visitors meet it, in headless Chromium (issue 32): plots with frame numbers,
+"""The viewer as visitors meet it, in headless Chromium (issues 32, 45): plots with values on both axes,
 scrubbing that shows the map, slider / label / frustum click in sync, a second page that follows
 the latest map, readable live captions, texts that follow the run's state, the first minute,
 and tokens with a view-only page. One finished scripted run is served to the whole module;
@@ -116,23 +116,33 @@ def poll_render(client, predicate, what, timeout=60):
         raise AssertionError(f"{what}: red={red(img)} green={green(img)} grey={grey(img)}")
 
 
-def test_plots_show_frame_numbers(browser, served):  # noqa: F811
+PLOT_AXES = """() => Object.values((window.__viserTestpoints || {}).uplots || {}).map(t => ({
+    x: t.chart.axes[0]._values || [], y: t.chart.axes[1]._values || [],
+    legend: [...t.chart.root.querySelectorAll('.u-legend')].map(e => e.innerText)}))"""
+
+
+def test_plots_show_values(browser, served, tmp_path):  # noqa: F811
+    """Both axes have numbers (x: frame numbers, not "12:00:03am"; y: several distinct values, not one
+    "0"), no legend reads "--", and the latest value of each plot is page text above it."""
     server, app = served
     page, _ = open_page(browser, url_of(server), server)
     try:
-        plot = page.locator(".u-over").first
-        plot.wait_for(timeout=30_000)
-        plot.scroll_into_view_if_needed()
-        box = plot.bounding_box()
-        values = []
+        charts = []
 
-        def hovered():   # uPlot's legend shows the x value under the cursor
-            page.mouse.move(box["x"] + box["width"] * 0.6, box["y"] + box["height"] / 2)
-            values[:] = [page.locator(".u-legend .u-series").first.locator(".u-value").inner_text()]
-            return values[0] not in ("", "--")
-        wait_until(hovered, 20, interval=0.3, what="a legend value")
-        assert re.fullmatch(r"\d+", values[0].strip()), values   # a frame number, not "12:00:03am" or "1/1/70"
-        assert 0 <= int(values[0]) <= 4
+        def drawn():   # uPlot's axis values as drawn (its chart object, from viser's test point); a
+            charts[:] = page.evaluate(PLOT_AXES)      # chart is first drawn 0 px wide, without x values
+            return len(charts) == 4 and all(c["x"] and len(c["y"]) >= 2 for c in charts)
+        wait_until(drawn, 30, interval=0.3, what="four plots with tick labels on both axes")
+        for chart in charts:
+            assert chart["x"] and all(re.fullmatch(r"\d+", v) for v in chart["x"]), charts
+            assert len(set(chart["y"])) == len(chart["y"]), chart
+            [float(v) for v in chart["y"]]                             # numbers, each of them
+            assert not any("--" in legend for legend in chart["legend"]), chart
+        body = text(page)
+        for title in ("Tracking loss", "ATE up to each frame", "PSNR of the live render", "Seconds per frame"):
+            assert re.search(re.escape(title) + r": [0-9.e-]+( cm| dB| s)? \(frame 4\)", body), (title, body)
+        page.locator(".uplot-container").nth(1).scroll_into_view_if_needed()
+        page.screenshot(path=str(tmp_path / "plots.png"))        # for a person to look at (pytest --basetemp)
     finally:
         page.close()
 

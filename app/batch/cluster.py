@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 
 from splat_core.errors import InputError
 
-INSTALL_HINT = "splatam batch needs Dask: pip install 'splatam-viewer[batch]'"
 CORES_PER_RUN_DEFAULT = 4       # a CPU run's threads when the machine has more cores than that
 MEMORY_PER_RUN_GB = 3.0         # a cpu-preset run on a 640x480 capture peaks near 2 GB (README, long_run)
 ALLOWED_FAILURES = 3            # worker deaths a task survives (Dask retries it on another worker)
@@ -28,7 +27,13 @@ def require_dask() -> None:
     try:
         import distributed  # noqa: F401
     except ImportError:
-        raise InputError(INSTALL_HINT) from None
+        raise InputError(install_hint()) from None
+
+
+def install_hint() -> str:
+    from app.console_commands import pip_install
+
+    return f"splatam batch needs Dask: {pip_install('splatam-viewer[batch]')}"
 
 
 def machine_cores() -> int:

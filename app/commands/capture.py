@@ -8,11 +8,13 @@ kept either way (transforms.json is rewritten atomically after every frame).
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 from pathlib import Path
 
 from splat_core.errors import InputError
 
+from app.console_commands import command
 from app.run_setup import add_idle_timeout, ctrl_c_ends
 
 
@@ -53,5 +55,5 @@ def main(args) -> int:
         raise InputError(stream.no_frame_message())
     note = f"; {stream.rejected} rejected, last: {stream.last_rejection}" if stream.rejected else ""
     print(f"{len(stream)} frames recorded in {out} ({stream.end_reason}{note}); "
-          f"run SLAM on it with: splatam run --input {out} --out RUN_DIR")
+          f"run SLAM on it with: {command('splatam')} run --input {shlex.quote(str(out))} --out RUN_DIR")
     return 0

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import sys
 from contextlib import nullcontext
 from pathlib import Path
 
+from app.console_commands import command
 from app.run_setup import add_idle_timeout, add_run_arguments, ctrl_c_ends, setup_from_args
 
 
@@ -72,5 +74,6 @@ def _run(args, run) -> int:
                                        "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
     print(json.dumps(summary))
     if not args.quiet:
-        print(f"wrote {run.out}: view it with splatam-viewer --open {run.out}", file=sys.stderr)
+        print(f"wrote {run.out}: view it with {command('splatam-viewer')} --open {shlex.quote(str(run.out))}",
+              file=sys.stderr)
     return 0

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+import shlex
 import socket
 import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
+from app.console_commands import command
 from app.run_setup import add_run_arguments, setup_from_args
 from app.snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES
 from app.viewer.access import SHARE_MODES
@@ -70,7 +74,9 @@ def port_is_free(host: str, port: int) -> bool:
 def start_server(host: str, port: int | None, access=None):
     """A viser server; an explicitly requested port must be free (viser would silently move on).
     `access` (app.viewer.access.Access): its tokens guard every request and websocket. The page is
-    served with app.viewer.page_shim's script either way."""
+    served with app.viewer.page_shim's script either way. viser prints a banner with the page's URL
+    (verbose=False does not stop it): with a token, that URL would not open the page, so the banner
+    is dropped and the caller prints the URL with its token."""
     import viser
 
     from app.viewer.access import check_bind, tolerate_malformed_messages
@@ -81,7 +87,9 @@ def start_server(host: str, port: int | None, access=None):
     explicit = port is not None and port != 0
     if explicit and not port_is_free(host, port):
         raise InputError(f"--port {port}: {host}:{port} is already in use; choose another port or pass --port 0")
-    with access.guard() if access is not None else serving():
+    quiet = contextlib.redirect_stdout(io.StringIO()) if access is not None and access.required \
+        else contextlib.nullcontext()
+    with access.guard() if access is not None else serving(), quiet:
         server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
     if access is not None:
         access.port = server.get_port()
@@ -142,30 +150,20 @@ def main(args) -> int:
     app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates,
                       browser_splats=args.browser_splats, draw_while_running=args.draw_while_running,
                       access=access, first_note=first_note, preview_frame=preview)
-    url = access.url(args.host, server.get_port())
-    print(what, file=sys.stderr)
-    print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
-    if access.share == "view":
-        print(f"  that URL opens a view-only page; yours, with the controls: "
-              f"{access.url(args.host, server.get_port(), 'control')}", flush=True)
-    elif access.required:
-        print("  anyone with this URL (its token) can control the run; --share view gives a view-only URL",
-              flush=True)
-    print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
-    if worker is not None:
-        worker.start()
     _stop_on_sigterm()
     announced = False
-    try:
+    try:                                # from here on Ctrl-C stops SLAM and writes the run folder
+        if worker is not None:
+            worker.start()
+        print(what, file=sys.stderr)
+        print_urls(access, args.host, server.get_port())
         while True:
             time.sleep(0.5)
             if worker is not None and not announced and not worker.is_alive():
                 announced = True
                 snap = worker.latest()
                 print(f"SLAM {snap.state}: {snap.message}; the viewer stays up for browsing", flush=True)
-                if snap.state in ("finished", "stopped") and worker.out_dir is not None:
-                    print(f"wrote {worker.out_dir}: view it later with splatam-viewer --open {worker.out_dir}",
-                          flush=True)
+                report_written(worker)
     except KeyboardInterrupt:
         pass
     finally:
@@ -175,6 +173,28 @@ def main(args) -> int:
             print("stopping SLAM after this frame and writing the run folder (Ctrl-C again to abort)…",
                   file=sys.stderr, flush=True)
             worker.stop(join_timeout=600)
+        if worker is not None and not announced:
+            report_written(worker)      # as a run that ended by itself says it (above)
         app.close()
         server.stop()
     return 0
+
+
+def print_urls(access, host: str, port: int) -> None:
+    url = access.url(host, port)
+    print(f"splatam-viewer listening on {url}  (Ctrl-C to quit)", flush=True)
+    if access.share == "view":
+        print(f"  that URL opens a view-only page; yours, with the controls: {access.url(host, port, 'control')}",
+              flush=True)
+    elif access.required:
+        print("  anyone with this URL (its token) can control the run; --share view gives a view-only URL",
+              flush=True)
+    print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
+
+
+def report_written(worker) -> None:
+    """Where SLAM wrote its run folder and how to open it, once it has been written."""
+    snap = worker.latest()
+    if snap is not None and snap.state in ("finished", "stopped") and worker.out_dir is not None:
+        out = shlex.quote(str(worker.out_dir))
+        print(f"wrote {worker.out_dir}: view it later with {command('splatam-viewer')} --open {out}", flush=True)

@@ -15,6 +15,10 @@ the current state; setting `value`, `content`, `disabled`, ... sets it on every 
 is remembered for pages that come later. An input changed on one page is copied to the others and
 then calls the widget's callbacks once, with the event of the page that changed it (`event.client`).
 Setting `value` from Python calls them too, with a client-less event, as viser's own widgets do.
+
+An input made with `per_page=True` is each page's own choice (the export format): a change on one
+page stays on that page, `value_for(client_id)` reads it, and a new page starts from `value`.
+Setting `value` from Python sets it on every page again.
 """
 
 from __future__ import annotations
@@ -27,7 +31,7 @@ STATE_NAMES = ("value", "content", "disabled", "visible", "max", "min", "image",
 
 
 class SharedWidget:
-    def __init__(self, gui: "ControlGui", kind: str, args: tuple, kwargs: dict):
+    def __init__(self, gui: "ControlGui", kind: str, args: tuple, kwargs: dict, per_page: bool = False):
         state = {}
         if "initial_value" in kwargs:
             state["value"] = kwargs["initial_value"]
@@ -47,6 +51,8 @@ class SharedWidget:
         object.__setattr__(self, "_kwargs", kwargs)
         object.__setattr__(self, "_state", state)
         object.__setattr__(self, "_handles", {})       # client id -> viser handle
+        object.__setattr__(self, "_per_page", per_page)
+        object.__setattr__(self, "_page_values", {})   # client id -> that page's own value (per_page)
         object.__setattr__(self, "callbacks", [])
 
     # ------------------------------------------------------------------ state
@@ -61,11 +67,18 @@ class SharedWidget:
             raise AttributeError(f"{name}: a shared widget holds only {STATE_NAMES}")
         with self._gui.lock:
             self._state[name] = value
+            if name == "value":
+                self._page_values.clear()
             handles = list(self._handles.values())
         for handle in handles:
             _set(handle, name, value)
         if name == "value" and self._kind != "add_markdown":
             self._fire(SimpleNamespace(client=None, client_id=None, target=self))
+
+    def value_for(self, client_id: int | None):
+        """The value on that page (a per-page input's own choice), else the shared value."""
+        with self._gui.lock:
+            return self._page_values.get(client_id, self._state.get("value"))
 
     def on_click(self, callback):
         self.callbacks.append(callback)
@@ -114,8 +127,12 @@ class SharedWidget:
                 return
             value = handle.value
             with self._gui.lock:
-                self._state["value"] = value
-                others = [h for c, h in self._handles.items() if c != cid]
+                if self._per_page:
+                    self._page_values[cid] = value
+                    others = []
+                else:
+                    self._state["value"] = value
+                    others = [h for c, h in self._handles.items() if c != cid]
             for other in others:
                 _set(other, "value", value)
         self._fire(event)
@@ -148,8 +165,8 @@ class ControlGui:
         finally:
             self._stack.pop()
 
-    def _widget(self, kind: str, *args, **kwargs) -> SharedWidget:
-        widget = SharedWidget(self, kind, args, kwargs)
+    def _widget(self, kind: str, *args, per_page: bool = False, **kwargs) -> SharedWidget:
+        widget = SharedWidget(self, kind, args, kwargs, per_page)
         self._stack[-1].append(widget)
         return widget
 
@@ -182,6 +199,7 @@ class ControlGui:
         for item in items:
             if isinstance(item, SharedWidget):
                 item._handles.pop(client_id, None)
+                item._page_values.pop(client_id, None)
             else:
                 self._forget(client_id, item[3])
 

@@ -5,7 +5,8 @@ The map comes from the latest MapSnapshot (immutable numpy copies), never from t
 optimiser's tensors, and the export runs on its own thread, so SLAM goes on beside it. Files go
 to EXPORT_DIR/exports/map.<suffix> (a subfolder, so a browsed run's own map.ply is never
 replaced), or to a temporary folder when the viewer has no export folder. The panel is built on
-the pages of visitors who may control the run (`gui`: a ControlGui), not on view-only pages.
+the pages of visitors who may control the run (`gui`: a ControlGui), not on view-only pages; the
+format is each page's own choice, the button exports what the page that pressed it chose.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ from ..exports import EXPORT_SUFFIXES, FORMATS, export_map
 
 LABELS = {"ply": "3DGS .ply", "splat": ".splat (antimatter15)", "spz": ".spz (Niantic)",
           "compressed-ply": ".compressed.ply (SuperSplat)", "html": "standalone .html page",
-          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (finished runs; mesh_layer.py)"}
+          "trajectory": "trajectory.txt (TUM, camera-to-world)", "mesh": "mesh .ply (TSDF of a finished run)"}
 
 STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
                "starting": "Exports the map as it is now; SLAM keeps running.",
@@ -36,19 +37,19 @@ STATE_NOTES = {"running": "Exports the map as it is now; SLAM keeps running.",
 
 
 class ExportPanel:
-    def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None, gui=None,
+    def __init__(self, server: viser.ViserServer, source, *, gui, export_dir: Path | None = None,
                  order: float = 4, mesh=None):
+        """`gui`: a ControlGui (control_gui.py), which gives each page its own format choice."""
         self.source = source                # latest() -> MapSnapshot | None
         self.mesh = mesh                    # a MeshLayer: offers the "mesh" entry
         self.export_dir = Path(export_dir) / "exports" if export_dir else None
         self._busy = threading.Lock()
         self.exports = 0
-        gui = gui if gui is not None else server.gui
         where = f"into `{self.export_dir}`" if self.export_dir else "into a temporary folder"
         with gui.add_folder("Export", order=order):
             self.format = gui.add_dropdown("Format", tuple(LABELS[f] for f in self.formats),
-                                           initial_value=LABELS[FORMATS[0]],
-                                           hint="The map in a splat format, or the estimated trajectory")
+                                           initial_value=LABELS[FORMATS[0]], per_page=True,
+                                           hint=format_hint(self.formats) + " (this page only)")
             self.button = gui.add_button("Export and download", icon=viser.Icon.DOWNLOAD,
                                          hint=f"Downloads the file and writes it {where}")
             self.note = gui.add_markdown(STATE_NOTES["running"])
@@ -59,9 +60,9 @@ class ExportPanel:
     def formats(self) -> tuple:
         return FORMATS + ("trajectory",) + (("mesh",) if self.mesh is not None else ())
 
-    @property
-    def selected_format(self) -> str:
-        return next(f for f in self.formats if LABELS[f] == self.format.value)
+    def selected_format(self, client_id: int | None = None) -> str:
+        """The format chosen on that page (each page has its own choice)."""
+        return next(f for f in self.formats if LABELS[f] == self.format.value_for(client_id))
 
     def follow(self, snap) -> None:
         """The note follows the run's state (running, paused, finished, browsing)."""
@@ -70,8 +71,9 @@ class ExportPanel:
             self.note.content = note
 
     def _on_click(self, event) -> None:
-        threading.Thread(target=self._export_and_send, args=(event.client, self.selected_format),
-                         name="viewer-export", daemon=True).start()
+        fmt = self.selected_format(event.client_id)      # the choice of the page that pressed the button
+        threading.Thread(target=self._export_and_send, args=(event.client, fmt), name="viewer-export",
+                         daemon=True).start()
 
     def _export_and_send(self, client, fmt: str) -> None:
         produce_and_send(client, self.info, lambda: self.export(fmt), "export",
@@ -110,6 +112,16 @@ class ExportPanel:
         finally:
             self.button.disabled = False
             self._busy.release()
+
+
+def format_hint(formats) -> str:
+    """The Format dropdown's hint, naming every kind of file it offers."""
+    kinds = ["The map (a splat file or a standalone .html page)"]
+    if "trajectory" in formats:
+        kinds.append("the estimated trajectory (TUM)")
+    if "mesh" in formats:
+        kinds.append("a mesh of a finished run (TSDF of its keyframes)")
+    return kinds[0] if len(kinds) == 1 else ", ".join(kinds[:-1]) + " or " + kinds[-1]
 
 
 def trajectory_bytes(snap) -> bytes:

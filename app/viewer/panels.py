@@ -2,26 +2,18 @@
 of visitors who may control the run (a ControlGui). Keyframes: scrub.py; export: export_panel.py.
 
 Callbacks are attached by the ViewerApp; this module only lays out widgets and formats what they show.
-The plots' x axis is the frame number (uPlot's x scale with time off; by default it reads the x values
-as UNIX times).
+The plots: plots.py.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import viser
-import viser.uplot
 
 from ..images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
 from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
 from .loops import loop_count_text, loop_status_lines
-
-PLOTS = (  # history key, title, colour
-    ("tracking_loss", "Tracking loss", "#e87026"),
-    ("ate_cm", "ATE (cm, up to each frame)", "#28aa5a"),
-    ("psnr", "PSNR of the live render (dB)", "#3c6ee6"),
-    ("seconds", "Seconds per frame", "#888888"),
-)
+from .plots import PlotsPanel
 
 
 def _placeholder(h: int = 120, w: int = 320) -> np.ndarray:
@@ -60,7 +52,7 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
     return "  \n".join(lines)
 
 
-STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused (Resume or Step to go on)",
+STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused",
                "finished": "**finished**: the run folder is written", "stopped": "stopped: the run folder is written",
                "error": "**error**"}
 
@@ -130,9 +122,11 @@ class Panels:
             self.pause_button = cgui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE, visible=has_controls,
                                                 hint="Pause SLAM after this frame (for every visitor)")
             self.resume_button = cgui.add_button("Resume", icon=viser.Icon.PLAYER_PLAY,
-                                                 visible=has_controls, disabled=True)
+                                                 visible=has_controls, disabled=True,
+                                                 hint="Go on with SLAM (for every visitor)")
             self.step_button = cgui.add_button("Step one frame", icon=viser.Icon.PLAYER_TRACK_NEXT,
-                                               visible=has_controls, disabled=True)
+                                               visible=has_controls, disabled=True,
+                                               hint="Process the next frame, then pause again (for every visitor)")
             self.map_updates = cgui.add_dropdown(
                 "Map updates", MAP_UPDATE_POLICIES, initial_value=map_updates, visible=has_controls,
                 hint="When the 3D view (splats, current camera, trajectory) follows SLAM: at each "
@@ -151,14 +145,7 @@ class Panels:
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
             self.live_caption = gui.add_markdown("Waiting for the first frame…")
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
-        with gui.add_folder("Plots", order=3, expand_by_default=has_controls):
-            self.plots = {}
-            for key, title, colour in PLOTS:
-                self.plots[key] = gui.add_uplot(
-                    data=(np.zeros(1), np.zeros(1)),
-                    series=({"label": "frame"}, {"label": title, "stroke": colour, "width": 2}),
-                    scales={"x": {"time": False}}, axes=({"label": "frame"}, {}),
-                    title=title, aspect=2.5)
+        self.plots = PlotsPanel(gui, order=3, expanded=has_controls)
         with gui.add_folder("Help", order=10, expand_by_default=False):
             gui.add_markdown(help_markdown)
 
@@ -184,15 +171,8 @@ class Panels:
                 button.disabled = disabled
 
     def update_plots(self, snap: MapSnapshot) -> None:
-        h = snap.history
-        if not h or len(h.get("frame", ())) == 0:
-            return
-        x = np.asarray(h["frame"], np.float64)
-        for key, handle in self.plots.items():
-            y = np.asarray(h.get(key, np.full_like(x, np.nan)), np.float64)
-            ok = np.isfinite(y)
-            if ok.any():
-                handle.data = (x[ok], y[ok])
+        no_reference = snap.ate_cm is None and snap.processed > 0
+        self.plots.update(snap.history, {"ate_cm": "n/a (no reference poses)"} if no_reference else None)
 
     def update_live(self, snap: MapSnapshot) -> None:
         img = live_mosaic(snap)

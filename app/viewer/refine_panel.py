@@ -44,10 +44,11 @@ class RefinePanel:
                                          hint="Optimise the finished map over all keyframes (as splatam refine); "
                                               "the page shows it sharpening")
             self.progress = gui.add_progress_bar(0.0, animated=False, visible=False)
-            self.info = gui.add_markdown("Refine the finished map over all keyframes (needs a run folder).")
+            self.info = gui.add_markdown(idle_note("starting", None))
         self.button.on_click(lambda _: self.start())
         self._run_dir: Path | None = None
         self._stop = threading.Event()
+        self._note_lock = threading.Lock()  # the idle note is never written over a started job's words
         self.thread: threading.Thread | None = None
         self.result: dict | None = None      # the metrics.json refine section once done
         self.error: str | None = None
@@ -69,6 +70,11 @@ class RefinePanel:
         disabled = run_dir is None or self.running
         if self.button.disabled != disabled:
             self.button.disabled = disabled
+        with self._note_lock:
+            if self.thread is None:          # before any job: the note says what Refine will do, or when
+                note = idle_note(snap.state, run_dir)
+                if self.info.content != note:
+                    self.info.content = note
 
     # ------------------------------------------------------------------ the job
     def start(self) -> bool:
@@ -79,8 +85,9 @@ class RefinePanel:
         self.progress.value, self.progress.visible = 0.0, True
         self.result = self.error = None
         self._stop.clear()
-        self.thread = threading.Thread(target=self._run, name="refine", daemon=True,
-                                       args=(self._run_dir, int(self.iterations.value), self.resolution.value))
+        with self._note_lock:
+            self.thread = threading.Thread(target=self._run, name="refine", daemon=True,
+                                           args=(self._run_dir, int(self.iterations.value), self.resolution.value))
         self.thread.start()
         return True
 
@@ -130,6 +137,19 @@ class RefinePanel:
         self._stop.set()
         if self.thread is not None:
             self.thread.join(timeout)
+
+
+def idle_note(state: str, run_dir: Path | None) -> str:
+    """The panel's note before a job: what Refine writes, or why it is not offered yet."""
+    from splat_core.run.run_folder import REFINED_MAP
+
+    if run_dir is not None:
+        return f"Refine the finished map over all keyframes; writes `{run_dir / REFINED_MAP}`."
+    if state in ("starting", "running", "paused"):
+        return "Refine the map over all keyframes once SLAM has finished writing the run folder."
+    if state == "browse":
+        return "Refining needs a run folder (its keyframes): open one with `splatam-viewer --open RUN_DIR`."
+    return "Refine is offered for a run that has finished."
 
 
 def summary_markdown(section: dict) -> str:
