@@ -184,6 +184,7 @@ class TUMCapture(IndexedCapture):
             cam["width"], cam["height"] = img.shape[1], img.shape[0]
         self._color_intr = make_intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam["width"],
                                            cam["height"], str(cam_file))
+        self.use_two_cameras(cam.get("two_cameras"))   # then the depth camera's, colour registered when read
 
         # reference poses
         gt = next((root / g for g in GT_FILES if (root / g).is_file()), None)
