@@ -132,3 +132,14 @@ def test_info_reports_edge_agreement_and_the_lines_to_add(raw, two):
     assert "not registered (camera file)" in text and "color_intrinsics: {fx:" in text and "depth_to_color:" in text
     after = gather(open_capture(two.path))["registration"]
     assert after["two_cameras"] and after["edge_agreement"] > 1.5 * info["registration"]["edge_agreement"]
+
+
+DATA = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "data"
+
+
+@pytest.mark.skipif(not (DATA / "7scenes_redkitchen_300").is_dir(), reason="shared data absent")
+def test_estimation_on_real_captures():
+    e = estimate_registration(open_capture(DATA / "7scenes_redkitchen_300"))
+    assert e.cameras.color.fx == pytest.approx(525, rel=0.02) and not e.registered
+    assert e.translation[0] == pytest.approx(-0.0254, abs=0.004)   # literature's Kinect v1 offset
+    assert estimate_registration(open_capture(DATA / "sun3d_3dmatch_fragment1")).registered
