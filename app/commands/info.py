@@ -1,7 +1,8 @@
-"""`splatam info --input PATH [--format NAME] [--config NAME] [--steps] [--json]`: what a capture
-holds, whether its poses, depth units and intrinsics look consistent (the reprojection check of
-docs/formats.md; with --steps at every step of the reference poses), and which settings layers a run
-on it would use (budget + format layer)."""
+"""`splatam info --input PATH [--format NAME] [--config NAME] [--steps] [--estimate-registration]
+[--json]`: what a capture holds, whether its poses, depth units and intrinsics look consistent (the
+reprojection check of docs/formats.md; with --steps at every step of the reference poses), how well
+its colour and depth line up (edge agreement; with --estimate-registration the colour camera that
+lines them up best), and which settings layers a run on it would use (budget + format layer)."""
 
 from __future__ import annotations
 
@@ -23,6 +24,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--steps", action="store_true",
                    help="also check every step of the reference poses against the depth (reads every frame): "
                         "lists steps the images contradict, which an ATE against that reference charges to any method")
+    p.add_argument("--estimate-registration", action="store_true",
+                   help="search the colour camera's focal length and offset (tx, ty) that best line colour edges up "
+                        "with depth edges over ~10 frames, and print the camera-file lines to add")
 
 
 def settings(source, config) -> dict:
@@ -36,9 +40,25 @@ def settings(source, config) -> dict:
             "tracking_iterations": config.tracking.iterations, "mapping_iterations": config.mapping.iterations}
 
 
-def gather(source, gap: int = 10, config=None, steps: bool = False) -> dict:
+def registration(source, estimate: bool) -> dict:
+    """Edge agreement of the frames as yielded, and with `estimate` the colour camera found."""
+    from splat_core.registration_estimate import edge_agreement, estimate_registration
+
+    out = {"edge_agreement": edge_agreement(source), "registered_by_reader": source.registered,
+           "two_cameras": getattr(source, "two_cameras", None) is not None}
+    if estimate:
+        e = estimate_registration(source)
+        out["estimate"] = {"focal_ratio": e.focal_ratio, "color_fx": e.cameras.color.fx, "color_fy": e.cameras.color.fy,
+                           "translation_m": list(e.translation), "edge_agreement_raw": e.before,
+                           "edge_agreement_estimated": e.after, "shift_px": e.shift_px,
+                           "already_registered": e.registered, "frames": e.frames,
+                           "camera_file_lines": e.cameras.camera_file_lines()}
+    return out
+
+
+def gather(source, gap: int = 10, config=None, steps: bool = False, estimate: bool = False) -> dict:
     """Everything `info` reports, as a JSON-ready dict (with `config`: the settings a run would use;
-    with `steps`: the check of every reference step)."""
+    with `steps`: the check of every reference step; with `estimate`: the colour camera estimated)."""
     import numpy as np
 
     from splat_core.io.checks import (
@@ -71,6 +91,7 @@ def gather(source, gap: int = 10, config=None, steps: bool = False) -> dict:
                               "inconsistent": [{"step": [i, i + 1], "median_abs_dz_m": float(residuals[i, 0]),
                                                 "fraction_within_2cm": float(residuals[i, 1])}
                                                for i in inconsistent_steps(residuals)]}
+    info["registration"] = registration(source, estimate)
     warnings = list(getattr(source, "warnings", []))
     if depth.message:
         warnings.append(depth.message)
@@ -126,6 +147,7 @@ def format_text(info: dict) -> str:
                          + "".join(f" ({b['step'][0]}->{b['step'][1]})" for b in sc["inconsistent"]))
     else:
         lines.append("ref. poses   no")
+    lines += _registration_lines(info["registration"])
     if info.get("settings"):
         st = info["settings"]
         w, h = st["working_size"]
@@ -137,6 +159,26 @@ def format_text(info: dict) -> str:
     return "\n".join(lines)
 
 
+def _registration_lines(reg: dict) -> list[str]:
+    ea = reg["edge_agreement"]
+    how = ("registered when read (two cameras in the camera file)" if reg["two_cameras"] else
+           "registered" if reg["registered_by_reader"] else "not registered (camera file)")
+    lines = [f"colour/depth {how}; edge agreement " + ("n/a (no depth edges)" if ea is None else f"{ea:.2f}")
+             + " (colour gradient at depth edges / image mean; ~1 unrelated, higher = better aligned)"]
+    e = reg.get("estimate")
+    if e:
+        tx, ty, _ = e["translation_m"]
+        lines.append(f"estimate     colour focal {e['focal_ratio']:.3f} x depth (fx {e['color_fx']:.1f}), offset "
+                     f"tx {tx * 100:+.2f} cm ty {ty * 100:+.2f} cm; edge agreement {e['edge_agreement_raw']:.2f} as "
+                     f"stored -> {e['edge_agreement_estimated']:.2f} (frames {', '.join(map(str, e['frames']))})")
+        if e["already_registered"]:
+            lines.append(f"estimate     already registered (the best moves no pixel more than {e['shift_px']:.1f} px)")
+        else:
+            lines.append("estimate     add to the camera file (fx fy cx cy width height stay the depth camera's):")
+            lines += [f"  {line}" for line in e["camera_file_lines"]]
+    return lines
+
+
 def main(args) -> int:
     from app.run_setup import load_run_config
     from splat_core.io import open_capture
@@ -144,6 +186,6 @@ def main(args) -> int:
 
     source = open_capture(args.input, format=args.format)
     config = load_run_config(args.config, source.format_name, resolve_device("auto"), args.resolution)
-    info = gather(source, gap=args.gap, config=config, steps=args.steps)
+    info = gather(source, gap=args.gap, config=config, steps=args.steps, estimate=args.estimate_registration)
     print(json.dumps(info, indent=2) if args.json else format_text(info))
     return 0

@@ -11,6 +11,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..registration import parse_two_cameras
 
 
 CAMERA_FILES = ("camera.yaml", "camera.yml", "camera.json", "cam_params.json")
@@ -24,9 +25,11 @@ def find_camera_file(folder: Path) -> Path | None:
 
 
 def load_camera_file(path: Path) -> dict:
-    """camera.yaml / camera.json (fx fy cx cy width height [depth_scale] [depth_registered_to_rgb])
-    or NICE-SLAM's cam_params.json ({"camera": {w h fx fy cx cy scale}}) -> dict with those keys
-    as floats, and "registered" (bool) when the file says whether depth is registered to colour."""
+    """camera.yaml / camera.json (fx fy cx cy width height [depth_scale] [depth_registered_to_rgb]
+    [color_intrinsics depth_to_color]) or NICE-SLAM's cam_params.json ({"camera": {w h fx fy cx cy
+    scale}}) -> dict with those keys as floats, "registered" (bool) when the file says whether depth
+    is registered to colour, and "two_cameras" (registration.TwoCameras) when it describes the colour
+    camera beside the depth camera (fx fy cx cy width height are then the depth camera's)."""
     path = Path(path)
     text = path.read_text(errors="replace")
     try:
@@ -66,6 +69,12 @@ def load_camera_file(path: Path) -> dict:
             raise InputError(f"{path}: 'depth_registered_to_rgb' must be true or false, "
                              f"got {data['depth_registered_to_rgb']!r}")
         out["registered"] = data["depth_registered_to_rgb"]
+    two = parse_two_cameras(data, str(path))
+    if two is not None:
+        if out.get("registered") is True:
+            raise InputError(f"{path}: 'depth_registered_to_rgb: true' contradicts color_intrinsics / "
+                             f"depth_to_color (a registered capture has one camera)")
+        out["two_cameras"] = two
     return out
 
 

@@ -18,6 +18,10 @@ Policies every reader follows (stated once here):
   defaults to 1: pass `min_confidence=1` for that denser, noisier depth, or 0 to keep everything.
 - Intrinsics that vary per frame (ARKit refocuses) are given per frame when the capture stores
   them; `intrinsics` is then the capture's nominal camera.
+- Two cameras (a camera file with `color_intrinsics` / `depth_to_color`, registration.py): the
+  reader's intrinsics are the depth camera's, and each frame's colour is registered to the depth
+  grid when read (`register_frame`), before any resizing; the frames are then on the depth camera's
+  grid whatever `resolution` says. A description of one camera (identity) changes nothing.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..frame import Frame, resize_to
+from ..registration import TwoCameras, register_frame
 from .source import FrameSource
 
 RESOLUTIONS = ("depth", "color")
@@ -60,6 +65,7 @@ class IndexedCapture(FrameSource):
         self._c2w: list[np.ndarray | None] = []
         self._color_intr: Intrinsics | None = None
         self._depth_size: tuple[int, int] | None = None
+        self.two_cameras: TwoCameras | None = None   # colour registered to depth when read (use_two_cameras)
 
     # -- to implement
     def _read_color(self, i: int) -> np.ndarray:
@@ -90,16 +96,30 @@ class IndexedCapture(FrameSource):
 
     @property
     def color_size(self) -> tuple[int, int]:
-        return self._color_intr.width, self._color_intr.height
+        c = self.two_cameras.color if self.two_cameras is not None else self._color_intr
+        return c.width, c.height
 
     @property
     def depth_size(self) -> tuple[int, int]:
-        return self._depth_size or self.color_size
+        return self._depth_size or (self._color_intr.width, self._color_intr.height)
 
     @property
     def size(self) -> tuple[int, int]:
         """(width, height) of the frames this source yields."""
-        return self.depth_size if self.resolution == "depth" else self.color_size
+        return self.depth_size if self.resolution == "depth" or self.two_cameras else self.color_size
+
+    def use_two_cameras(self, cams: TwoCameras | None) -> None:
+        """The camera file describes the colour camera beside the depth camera (`_color_intr`, set
+        before, is then the depth camera's): frames are registered when read, unless the two
+        cameras are one (then nothing changes)."""
+        if cams is None or cams.is_identity(self._color_intr):
+            return
+        if self._depth_size not in (None, (self._color_intr.width, self._color_intr.height)):
+            raise InputError(f"{self.path}: the camera file's width x height ({self._color_intr.width}x"
+                             f"{self._color_intr.height}) must be the depth images' ({self._depth_size[0]}x"
+                             f"{self._depth_size[1]}) when it describes two cameras")
+        self.two_cameras = cams
+        self.registered = True
 
     @property
     def intrinsics(self) -> Intrinsics:
@@ -136,6 +156,21 @@ class IndexedCapture(FrameSource):
         if not 0 <= i < n:
             raise IndexError(f"frame {i} out of range (capture has {n} frames)")
         i = int(i)
+        color, depth = self.raw_pair(i)
+        if self.two_cameras is not None:
+            color, depth = register_frame(color, depth, self._frame_color_intr(i), self.two_cameras)
+        intr = self._frame_color_intr(i)
+        if (width, height) != (intr.width, intr.height):
+            intr = intr.scaled(width, height)
+        if color.shape[:2] != (intr.height, intr.width):
+            color = np.clip(resize_to(color, intr, False), 0.0, 1.0)
+        depth = resize_to(depth, intr, True)
+        T = self._c2w[i] if self._c2w else None
+        return Frame(i, float(self._timestamps[i]), np.ascontiguousarray(color, dtype=np.float32),
+                     np.ascontiguousarray(depth, dtype=np.float32), intr, None if T is None else T.copy())
+
+    def raw_pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame i's colour and depth (metres, confidence applied) as stored, each on its own grid."""
         color = self._read_color(i)
         if (color.shape[1], color.shape[0]) != self.color_size:
             raise InputError(f"{self._name(i, 'color')}: image is {color.shape[1]}x{color.shape[0]}, "
@@ -151,15 +186,7 @@ class IndexedCapture(FrameSource):
                 raise InputError(f"{self._name(i, 'confidence')}: confidence map is {conf.shape[1]}x{conf.shape[0]}, "
                                  f"expected the depth size {depth.shape[1]}x{depth.shape[0]}")
             depth = np.where(conf >= self.min_confidence, depth, np.float32(0)).astype(np.float32)
-        intr = self._frame_color_intr(i)
-        if (width, height) != (intr.width, intr.height):
-            intr = intr.scaled(width, height)
-        if color.shape[:2] != (intr.height, intr.width):
-            color = np.clip(resize_to(color, intr, False), 0.0, 1.0)
-        depth = resize_to(depth, intr, True)
-        T = self._c2w[i] if self._c2w else None
-        return Frame(i, float(self._timestamps[i]), np.ascontiguousarray(color, dtype=np.float32),
-                     np.ascontiguousarray(depth, dtype=np.float32), intr, None if T is None else T.copy())
+        return color, depth
 
     def describe(self) -> str:
         w, h = self.size

@@ -57,6 +57,12 @@ class FrameSource(ABC):
         Readers whose colour and depth grids differ resample each from its own grid."""
         return resize_frame(self[i], width, height)
 
+    def raw_pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame i's colour and depth as stored, each on its own grid (readers of captures whose
+        colour is registered when read override this; here: the frame's)."""
+        f = self[i]
+        return f.color, f.depth
+
     def __iter__(self) -> Iterator[Frame]:
         for i in range(len(self)):
             yield self[i]

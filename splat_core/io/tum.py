@@ -8,7 +8,9 @@ within `max_dt` (0.08 s, as SplaTAM), one-to-one (a depth image is never used tw
 poses are interpolated (slerp) between the ground-truth samples around the RGB stamp when both
 lie within `pose_max_dt` (0.02 s, the TUM tools' default), else the nearest sample within it,
 else none (a frame whose pose is missing in a 30 Hz trajectory is not filled from its neighbours).
-Depth value 65535 is "no reading" (7-Scenes) and becomes invalid like 0.
+Depth value 65535 is "no reading" (7-Scenes) and becomes invalid like 0. A camera file that
+describes two cameras (color_intrinsics, depth_to_color: docs/formats.md) gives the depth camera in
+fx fy cx cy width height; colour is then registered to depth when read (common.py, registration.py).
 """
 
 from __future__ import annotations
@@ -184,6 +186,7 @@ class TUMCapture(IndexedCapture):
             cam["width"], cam["height"] = img.shape[1], img.shape[0]
         self._color_intr = make_intrinsics(cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam["width"],
                                            cam["height"], str(cam_file))
+        self.use_two_cameras(cam.get("two_cameras"))   # then the depth camera's, colour registered when read
 
         # reference poses
         gt = next((root / g for g in GT_FILES if (root / g).is_file()), None)
