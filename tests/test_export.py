@@ -143,7 +143,8 @@ def test_cli_errors_are_one_line(run_dir, tmp_path, capsys, case):
     empty.mkdir()
     args, message = {
         "unknown format": ([run_dir, "--format", "gltf", "--out", tmp_path / "m.gltf"],
-                           "unknown export format 'gltf'; expected one of ply, splat, spz, compressed-ply, html"),
+                           "--format gltf: unknown export format; expected one of ply, splat, spz, compressed-ply, html, "
+                           "colmap, nerfstudio, mesh"),
         "no suffix": ([run_dir, "--out", obj], f"{obj}: cannot tell the format from the suffix; pass --format"),
         "missing": ([nope, "--format", "spz", "--out", tmp_path / "m.spz"], f"{nope}: no such run folder or map file"),
         "not a run": ([empty, "--out", tmp_path / "m.spz"], f"{empty}: not a run folder (expected map.ply inside)"),
