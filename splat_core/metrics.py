@@ -50,6 +50,19 @@ def align_rigid(src_points, dst_points) -> tuple[np.ndarray, np.ndarray]:
     return R, t
 
 
+def align_similarity(src_points, dst_points) -> tuple[float, np.ndarray, np.ndarray]:
+    """Scale s, rotation R and translation t minimising sum |s R src_i + t - dst_i|^2 (Umeyama 1991:
+    `align_rigid`'s rotation, and the scale that the centred point sets' variance and the
+    singular values give). For comparing against a reference of another scale (SfM)."""
+    src, dst = _np(src_points), _np(dst_points)
+    R, _ = align_rigid(src, dst)
+    mu_s, mu_d = src.mean(axis=0), dst.mean(axis=0)
+    a, b = src - mu_s, dst - mu_d
+    var = float((a ** 2).sum())
+    s = float(np.einsum("ij,ij->", b, a @ R.T)) / var if var > 0 else 1.0
+    return s, R, mu_d - s * R @ mu_s
+
+
 def _valid_pairs(est, ref) -> tuple[np.ndarray, np.ndarray]:
     est, ref = _np(est), _np(ref)
     if est.shape != ref.shape or est.ndim != 3 or est.shape[1:] != (4, 4):
@@ -58,9 +71,10 @@ def _valid_pairs(est, ref) -> tuple[np.ndarray, np.ndarray]:
     return est[keep], ref[keep]
 
 
-def ate_errors(est_c2w, ref_c2w) -> np.ndarray:
+def ate_errors(est_c2w, ref_c2w, scale: bool = False) -> np.ndarray:
     """Per-frame camera-centre errors (metres) after aligning the ESTIMATE onto the REFERENCE
-    with `align_rigid` (frames whose reference pose is not finite are dropped).
+    with `align_rigid` (frames whose reference pose is not finite are dropped); `scale`: with
+    `align_similarity` (Sim(3)) instead, in the reference's units.
 
     For a rigid (no-scale) alignment the residual norms are the same whichever trajectory is
     moved, so this equals aligning the reference onto the estimate. NaN if an estimated pose
@@ -72,6 +86,9 @@ def ate_errors(est_c2w, ref_c2w) -> np.ndarray:
     p_est, p_ref = est[:, :3, 3], ref[:, :3, 3]
     if not np.all(np.isfinite(p_est)):
         return np.full(len(p_est), np.nan)
+    if scale:
+        k, R, t = align_similarity(p_est, p_ref)
+        return np.linalg.norm(k * p_est @ R.T + t - p_ref, axis=1)
     R, t = align_rigid(p_est, p_ref)
     return np.linalg.norm(p_est @ R.T + t - p_ref, axis=1)
 
