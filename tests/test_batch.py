@@ -23,6 +23,8 @@ from app.cli import splatam_main
 from splat_core.errors import InputError
 from helpers import captures as fixtures
 from helpers.configs import TINY
+from helpers.hold import Hold
+from helpers.viewer import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -200,36 +202,33 @@ def test_a_worker_killed_mid_run_is_retried_and_resumes_to_the_same_trajectory(t
     import psutil   # a dependency of distributed
     caps = tmp_path / "caps"
     fixtures.write_tum(caps / "a", n=9)
-    for name in ("b",):                                              # the same capture twice
-        import shutil
-        shutil.copytree(caps / "a", caps / name)
+    import shutil
+    shutil.copytree(caps / "a", caps / "b")                          # the same capture twice
     out = tmp_path / "out"
+    # a's run is held after its first checkpoint (frame 3 of 9): its worker is killed while the run
+    # has started and cannot have finished, whatever the load; the retry finds the hold done and goes on.
+    hold = Hold(tmp_path / "hold", ["a"])
     proc = subprocess.Popen([sys.executable, "-m", "app.cli", "batch", *(str(caps / n) for n in "ab"), "--out",
-                             str(out), "--config", str(tiny), "--workers", "2", "--quiet"], env=_batch_env(),
+                             str(out), "--config", str(tiny), "--workers", "2", "--quiet"], env=hold.env(_batch_env()),
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        deadline = time.time() + 120
-        killed = None
-        while killed is None and time.time() < deadline and proc.poll() is None:
-            for n in "ab":                 # a run with a checkpoint and far from done: kill its worker
-                if state.has_checkpoint(out / n) and not (out / n / "metrics.json").exists():
-                    killed, pid = n, state.read_status(out / n)["pid"]
-                    child = [c.pid for c in psutil.Process(pid).children()]   # its `splatam run`
-                    os.kill(pid, signal.SIGKILL)
-                    alive = _wait_gone(child, psutil)
-                    break
-            time.sleep(0.05)
-        assert killed, "no run reached its first checkpoint"
-        output = proc.communicate(timeout=180)[0].decode()
+        wait_until(lambda: proc.poll() is not None or hold.held("a"), timeout=300, interval=0.05,
+                   what="a's run to reach its first checkpoint")
+        assert proc.poll() is None, proc.communicate()[0].decode()
+        pid = state.read_status(out / "a")["pid"]                     # the Dask worker running a's task
+        child = [c.pid for c in psutil.Process(pid).children()]       # its `splatam run`, held
+        os.kill(pid, signal.SIGKILL)
+        alive = _wait_gone(child, psutil, timeout=60)
+        output = proc.communicate(timeout=300)[0].decode()
     finally:
         proc.kill()
     assert proc.returncode == 0, output
     rows = _summary(out)
-    assert rows[killed]["status"] == "resumed" and rows[killed]["attempts"] == 2
-    assert all(r["status"] == "done" for n, r in rows.items() if n != killed)
+    assert rows["a"]["status"] == "resumed" and rows["a"]["attempts"] == 2
+    assert rows["b"]["status"] == "done"
     trajectories = {(out / n / "trajectory.txt").read_bytes() for n in "ab"}
     assert len(trajectories) == 1                                    # sequential engine: identical
-    assert len(state.read_metrics(out / killed)["per_frame"]) == 9
+    assert len(state.read_metrics(out / "a")["per_frame"]) == 9
     assert child and not alive                                       # the killed worker's run died with it
 
 
@@ -238,25 +237,29 @@ def test_ctrl_c_keeps_finished_runs_writes_the_summary_and_the_rerun_resumes(tmp
     pytest.importorskip("distributed")
     caps = tmp_path / "caps"
     fixtures.write_tum(caps / "a", n=3)
-    fixtures.write_tum(caps / "b", n=15)            # far from done when a is
+    fixtures.write_tum(caps / "b", n=6)
     out = tmp_path / "out"
     cmd = [sys.executable, "-m", "app.cli", "batch", str(caps / "a"), str(caps / "b"), "--out", str(out),
            "--config", str(tiny), "--workers", "2", "--quiet"]
-    proc = subprocess.Popen(cmd, env=_batch_env(), start_new_session=True, stdout=subprocess.PIPE,
+    # b's run is held after its first checkpoint (frame 3 of 6) until Ctrl-C ends it: Ctrl-C comes once a
+    # is done and b has started, and b cannot have finished by then, whatever the load. (Waiting for
+    # "a done and b checkpointed" alone let b finish first on a loaded machine.)
+    hold = Hold(tmp_path / "hold", ["b"])
+    proc = subprocess.Popen(cmd, env=hold.env(_batch_env()), start_new_session=True, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT)
     try:
-        deadline = time.time() + 120
-        while time.time() < deadline and not (state.read_status(out / "a").get("status") == "done"
-                                              and state.has_checkpoint(out / "b")):
-            time.sleep(0.05)
+        wait_until(lambda: proc.poll() is not None or (state.read_status(out / "a").get("status") == "done"
+                                                       and hold.held("b")),
+                   timeout=300, interval=0.05, what="a done and b held after its first checkpoint")
+        assert proc.poll() is None, proc.communicate()[0].decode()
         os.killpg(proc.pid, signal.SIGINT)                           # Ctrl-C in a terminal: the whole group
-        output = proc.communicate(timeout=60)[0].decode()
+        output = proc.communicate(timeout=120)[0].decode()
     finally:
         proc.kill()
     assert proc.returncode == 130, output
     rows = _summary(out)
     assert rows["a"]["status"] == "done" and rows["b"]["status"] == "interrupted"
     assert not (out / "b/metrics.json").exists() and (out / "index.html").is_file()
-    assert subprocess.run(cmd, env=_batch_env()).returncode == 0
+    assert subprocess.run(cmd, env=_batch_env()).returncode == 0     # no hold now
     rows = _summary(out)
-    assert rows["a"]["status"] == "skipped" and rows["b"]["status"] == "resumed" and rows["b"]["frames"] == 15
+    assert rows["a"]["status"] == "skipped" and rows["b"]["status"] == "resumed" and rows["b"]["frames"] == 6

@@ -3,8 +3,11 @@ map, and the synthetic hard captures (a 30-frame jump, a covered lens, a fast 90
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import functools
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -14,6 +17,7 @@ from splat_core.io.trajectory import read_tum_trajectory, write_tum_trajectory
 from splat_core.keyframes import is_keyframe_time
 from splat_core.metrics import ate_rmse
 from splat_core.run import Pipeline
+from splat_core.run.live import LiveEngine
 from splat_core.relocalise import Evidence, lost_reason, relative_motion
 from splat_core.slam import SplaTAM
 from splat_core.synthetic import HardCapture, turn_away
@@ -76,13 +80,65 @@ def test_a_lost_frame_adds_nothing_and_the_pose_is_held_not_extrapolated():
     assert slam.lost_tracking.active
 
 
+@contextlib.contextmanager
+def mapper_one_frame_behind():
+    """The live engine with its timing fixed: frame t (t >= 2) is tracked against the map of frame
+    t-2, the furthest behind that `live.max_lag` 1 (the cpu preset's) lets tracking run, and the
+    tracker and the mapper take turns.
+
+    Left to the machine, which frames the map holds when a frame is tracked depends on thread
+    timing (and the two threads sharing the cores changes the floating-point sums), so the live
+    engine's ATE varies from run to run: jump-live once gave 12.7 cm against a bound of 2.3 cm on a
+    loaded machine. Here the mapper starts mapping frame m only once the tracker waits for the map
+    of m (the policy's wait before tracking m+2, a lost frame's retrack, or `drain`): a condition,
+    no sleep; and the tracker does not run on while the mapper looks for loops after a keyframe
+    (the engine lets it). Every run takes the same path, the one where the map lags most, so the ATE bound
+    below is a fixed number, not a draw. The live engine's timing itself is tested in test_live.py."""
+    cond = threading.Condition()
+    awaited = [-1]                       # the newest frame whose map the tracker has waited for
+    wait_for_map, map_, drain = LiveEngine._wait_for_map, LiveEngine._map, LiveEngine.drain
+
+    def await_map(frame):
+        with cond:
+            awaited[0] = max(awaited[0], frame)
+            cond.notify_all()
+
+    def _wait_for_map(self, t, max_lag=None):
+        if t == 0:
+            return wait_for_map(self, t, max_lag)
+        need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))   # as LiveEngine's
+        await_map(need)
+        waited = wait_for_map(self, t, max_lag)
+        with self._cond:                 # the engine lets the tracker on while loop detection runs: not here
+            while self._mapped < need and self.error is None:
+                self._cond.wait(0.5)
+        return waited
+
+    def _map(self, batch):
+        newest = batch[-1][0]
+        with cond:
+            assert cond.wait_for(lambda: awaited[0] >= newest, 600), "the tracker never waited for the map"
+        return map_(self, batch)
+
+    def _drain(self):
+        await_map(self._handed)
+        return drain(self)
+
+    LiveEngine._wait_for_map, LiveEngine._map, LiveEngine.drain = _wait_for_map, _map, _drain
+    try:
+        yield
+    finally:
+        LiveEngine._wait_for_map, LiveEngine._map, LiveEngine.drain = wait_for_map, map_, drain
+
+
 def hard_run(kind, tmp_path=None, n=24, at=8, engine="sequential", **kw):
     src = HardCapture(kind, n_frames=n, at=at, width=80, height=60)
     pipe = Pipeline(src, light_config(), tmp_path, device="cpu", engine=engine, **kw)
     pipe.warn = lambda message: None
-    while pipe.step() is not None:
-        pass
-    metrics = pipe.finish()
+    with mapper_one_frame_behind() if engine == "live" else contextlib.nullcontext():
+        while pipe.step() is not None:
+            pass
+        metrics = pipe.finish()
     est, ref = np.array(pipe.estimated_c2w()), np.array(pipe.reference_c2w())
     errors = np.linalg.norm(est[:, :3, 3] - ref[:, :3, 3], axis=1)
     return pipe, metrics, errors

@@ -1,6 +1,5 @@
 """The synthetic scene: exact geometry, consistent poses, determinism, sensor options."""
 
-import time
 
 import numpy as np
 import pytest
@@ -185,10 +184,9 @@ def test_explicit_intrinsics_and_novel_views():
         SyntheticScene().render(look_at_c2w([5.0, 0, 0], [0, 0, 0]), intr)
 
 
-def test_speed_sanity():
+def test_frames_after_the_first_render():
+    # Was a speed check (< 1 s a frame); speed belongs to benchmarks/, tests assert no durations.
     src = SyntheticSource(n_frames=5, width=320, height=240)
-    src[0]
-    t0 = time.perf_counter()
-    for i in range(1, 5):
-        src[i]
-    assert (time.perf_counter() - t0) / 4 < 1.0   # typically ~0.05 s; generous for shared CI machines
+    for i in range(5):
+        f = src[i]
+        assert f.color.shape == (240, 320, 3) and f.depth.shape == (240, 320) and (f.depth > 0).any()
