@@ -70,8 +70,18 @@ def add_run_arguments(p: argparse.ArgumentParser, engine_default: str) -> None:
     p.add_argument("--engine", default=engine_default, choices=[engine_default, other],
                    help="sequential: track, then map, frame by frame (deterministic); live: tracking runs ahead "
                    f"while a mapper thread maps (faster, not bitwise reproducible); default {engine_default}")
+    p.add_argument("--realtime", type=positive_fps, nargs="?", const=0.0, default=None, metavar="FPS",
+                   help="play a capture back at its own frame rate (its timestamps; 30 frames/s without usable "
+                   "ones), or at FPS, handing SLAM the newest frame and dropping the rest, as a live stream does")
     p.add_argument("--loop-closure", default=None, choices=["on", "off"],
                    help="close loops online (docs/loop-closure.md; default: the preset's: on in cpu and gpu, off in the paper presets)")
+
+
+def positive_fps(text: str) -> float:
+    value = float(text)
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"{text}: expected a positive frame rate")
+    return value
 
 
 def input_format(input_path, format: str | None) -> str:
@@ -121,6 +131,7 @@ class RunSetup:
     stride: int = 1
     resume: bool = False
     pipeline: object = None
+    realtime: bool = False          # a capture played back in real time (a LiveSource, but no stream)
 
     @property
     def live(self) -> bool:
@@ -155,9 +166,11 @@ class RunSetup:
 def setup_run(input_path, *, out: Path | None, format: str | None = None, config: str | None = None,
               resolution: str | None = None, min_confidence: int | None = None, device: str = "auto",
               engine: str = "sequential", max_frames: int | None = None, stride: int = 1, resume: bool = False,
-              idle_timeout: float | None = None, loop_closure: str | None = None) -> RunSetup:
+              idle_timeout: float | None = None, loop_closure: str | None = None,
+              realtime: float | None = None) -> RunSetup:
     """Settings and input of a run (`input_path` None or "synthetic": the synthetic scene; nerfcapture://: the
-    live stream, recorded to OUT/capture and ended after `idle_timeout` seconds without a frame)."""
+    live stream, recorded to OUT/capture and ended after `idle_timeout` seconds without a frame).
+    `realtime` (not None): play the capture back in real time, at that frame rate (0: its own)."""
     from splat_core.run import open_input, resolve_device
     from splat_core.run.run_folder import RunFolder
 
@@ -173,6 +186,12 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
                              f"(or continue it: {command('splatam')} run --resume)")
     if input_path == "synthetic":
         input_path = None
+    if realtime is not None:
+        if str(input_path).startswith(STREAM):
+            raise InputError("--realtime plays a capture back; nerfcapture:// already arrives in real time")
+        if resume or stride != 1:
+            raise InputError("--realtime does not go with --resume or --stride (playback drops frames by itself, "
+                             "and which ones depends on timing)")
     dev = resolve_device(device)
     format_name = input_format(input_path, format)
     cfg = load_run_config(config, format_name, dev, resolution, min_confidence, loop_closure, engine)
@@ -185,7 +204,12 @@ def setup_run(input_path, *, out: Path | None, format: str | None = None, config
     else:
         options = {} if cfg.min_confidence is None else dict(min_confidence=cfg.min_confidence)
         source = open_input(input_path, format=format, **options)
-    return RunSetup(source, cfg, out, dev.type, engine, max_frames, stride, resume)
+    if realtime is not None:
+        from splat_core.io.playback import RealtimePlayback
+
+        source = RealtimePlayback(source, realtime or None, max_frames=max_frames)
+        max_frames = None           # the playback ends with the capture's first max_frames frames
+    return RunSetup(source, cfg, out, dev.type, engine, max_frames, stride, resume, realtime=realtime is not None)
 
 
 def setup_from_args(args, *, out: Path | None, idle_timeout: float | None = None, resume: bool = False) -> RunSetup:
@@ -193,4 +217,4 @@ def setup_from_args(args, *, out: Path | None, idle_timeout: float | None = None
     return setup_run(args.input, out=out, format=args.format, config=args.config, resolution=args.resolution,
                      min_confidence=args.min_confidence, device=args.device, engine=args.engine,
                      max_frames=args.max_frames, stride=args.stride, resume=resume, idle_timeout=idle_timeout,
-                     loop_closure=getattr(args, "loop_closure", None))
+                     loop_closure=getattr(args, "loop_closure", None), realtime=getattr(args, "realtime", None))

@@ -102,6 +102,7 @@ class MapSnapshot:
     out_dir: Path | None = None
     skipped_frames: tuple = ()             # (source index, reason) of bad frames the run skipped
     lost_frames: tuple = ()                # processed-frame numbers where tracking was lost (pose held, not mapped)
+    received: tuple | None = None          # a live source (a stream, --realtime): (frames received, dropped)
     loops: tuple | None = None             # loops closed so far (splat_core/loop/closer.py records); None: loop closure off
 
     @property

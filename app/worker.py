@@ -251,5 +251,6 @@ class SlamWorker(threading.Thread):
                 message=message, out_dir=self.out_dir,
                 skipped_frames=tuple((s["source_index"], s["reason"]) for s in pipe.skipped),
                 lost_frames=tuple(int(x["index"]) for x in pipe.lost), loops=self._loops(),
+                received=(int(pipe.source.received), int(pipe.source.dropped)) if pipe.streaming else None,
             )
             self._cond.notify_all()

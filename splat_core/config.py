@@ -42,7 +42,7 @@ from .config_sections import (ALIGN_BACKENDS, KEYFRAME_SELECTIONS, TRACKING_PIXE
 
 # The preset a run uses without --config, by device (torch.device.type) and engine: `splatam run`,
 # `splatam-viewer`, `splatam batch` (through run), `splatam info` and `splatam config show` read it here.
-DEFAULT_PRESETS = {("cpu", "sequential"): "cpu", ("cpu", "live"): "cpu",
+DEFAULT_PRESETS = {("cpu", "sequential"): "cpu", ("cpu", "live"): "live",
                    ("cuda", "sequential"): "gpu", ("cuda", "live"): "gpu"}
 DEVICE_WORDS = {"cpu": "a CPU", "cuda": "an NVIDIA GPU"}
 

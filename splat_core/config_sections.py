@@ -148,6 +148,11 @@ class LiveConfig:
     max_lag: int = setting(2, "frames the live engine's tracker may run ahead of the newest mapped frame (live.py)",
                            unit="frames", trades="larger: faster live tracking, a worse map (2 maps about 0.7 dB "
                            "worse than 1 on SUN3D fragment 2)")
+    wait: bool = setting(True, "the live engine's tracker waits for the mapper (max_lag; and a frame lost against a "
+                         "lagging map is tracked again once the map has caught up); false: it never waits after "
+                         "frame 0 and tracks against the newest published map, the mapper maps the keyframes and "
+                         "the newest frame of what was handed over (the `live` preset)",
+                         trades="false: tracking at its own rate, frames between keyframes are not mapped")
 
 
 @dataclass

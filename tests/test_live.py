@@ -112,3 +112,34 @@ def test_live_run_resumes_from_its_checkpoint(tmp_path):
     from splat_core.errors import InputError
     with pytest.raises(InputError, match="engine"):
         Pipeline(_source(8), config, tmp_path, engine="sequential", resume=True)
+
+
+def test_live_preset_tracks_on_while_the_mapper_is_blocked():
+    """`live.wait: false` (the `live` preset): after frame 0 is in the map, the tracker goes on while
+    a mapper step is held (a mapper slowed without limit), tracking against frame 0's map; the
+    mapper's lag is reported; once released, one step maps what was handed over."""
+    config = load_config("live", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
+                                            "mapping": {"first_frame_iterations": 5, "iterations": 2},
+                                            "loop_closure": {"enabled": False}})
+    assert config.live.wait is False and load_config("cpu").live.wait is True
+    pipe = Pipeline(SyntheticSource(n_frames=6, width=80, height=60, seed=0), config, engine="live")
+    engine, gate = pipe.engine, threading.Event()
+    mapped = engine._map
+
+    def held(batch):                     # every step after frame 0's waits for the test
+        if batch[0][0] > 0:
+            gate.wait(120)
+        mapped(batch)
+    engine._map = held
+    try:
+        results = [pipe.step() for _ in range(6)]
+        assert not gate.is_set() and engine._mapped == 0        # all six tracked, only frame 0 mapped
+        assert [r.index for r in results] == list(range(6))
+        assert engine.lags == [1, 2, 3, 4, 5] and engine.lag_keyframes == [0, 0, 0, 0, 1]
+        assert len({r.map_version for r in results[1:]}) == 1
+    finally:
+        gate.set()
+    metrics = pipe.finish()
+    assert engine._mapped == 5 and metrics["num_gaussians"] > results[1].num_gaussians   # frame 0's map grew
+    assert (metrics["live"]["lag_frames_median"], metrics["live"]["lag_frames_max"]) == (3.0, 5)
+    assert metrics["live"]["lag_keyframes_max"] == 1 and metrics["live"]["wait"] is False

@@ -44,3 +44,12 @@ def test_the_shared_status_gives_no_instructions_for_the_run_controls():
     """The status line is on every page, view-only ones too: the words for pause say no more than that."""
     text = status_markdown(snapshot("paused"))
     assert "paused" in text and "Resume" not in text and "Step" not in text
+
+
+def test_the_status_counts_the_frames_a_live_source_dropped():
+    """A live source (the stream, --realtime): frames received, processed and dropped; none otherwise."""
+    import dataclasses
+
+    text = status_markdown(dataclasses.replace(snapshot("running"), received=(30, 26)))
+    assert "Frames received: 30 · processed 4 · dropped **26**" in text
+    assert "received" not in status_markdown(snapshot("running"))

@@ -25,7 +25,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def main(args) -> int:
     run = setup_from_args(args, out=Path(args.out), idle_timeout=args.idle_timeout, resume=args.resume)
-    if run.live and not args.quiet:
+    if run.live and not run.realtime and not args.quiet:
         print(run.waiting_message(), file=sys.stderr, flush=True)
     try:
         with ctrl_c_ends(run.source, "finishing this frame and writing the run") if run.live else nullcontext():
@@ -65,13 +65,16 @@ def _run(args, run) -> int:
         bar.update(pipe.cursor - bar.n)
     bar.close()
     source.close()
-    if pipe.streaming and not args.quiet:
+    if run.realtime and not args.quiet:
+        print(source.end_message(), file=sys.stderr)
+    elif pipe.streaming and not args.quiet:
         s = source.stats()
         print(f"stream ended ({s['stream_end']}): {s['received']} frames received and recorded in {s['capture']}, "
               f"{s['dropped']} not processed, {s['rejected']} rejected", file=sys.stderr)
     metrics = pipe.finish()
     summary = {k: metrics[k] for k in ("frames", "frames_skipped", "frames_lost", "loops_closed", "ate_rmse_cm", "psnr", "depth_l1_cm",
-                                       "wall_seconds_per_frame", "num_gaussians", "received", "dropped") if k in metrics}
+                                       "wall_seconds_per_frame", "num_gaussians", "received", "dropped", "processed_share")
+               if k in metrics}
     print(json.dumps(summary))
     if not args.quiet:
         print(f"wrote {run.out}: view it with {command('splatam-viewer')} --open {shlex.quote(str(run.out))}",

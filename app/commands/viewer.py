@@ -133,14 +133,15 @@ def main(args) -> int:
         out = Path(args.out) if args.out else Path("runs") / datetime.now().strftime("viewer-%Y%m%d-%H%M%S")
         run = setup_from_args(args, out=out, idle_timeout=None)   # a stream runs until Ctrl-C / --max-frames
         if run.live:
-            print(run.waiting_message(), file=sys.stderr, flush=True)
+            if not run.realtime:
+                print(run.waiting_message(), file=sys.stderr, flush=True)
             stream = run.source
         from app.warmup import COMPILING_NOTE, kernels_compiled
 
         if not kernels_compiled():
             first_note = COMPILING_NOTE
             print(COMPILING_NOTE, file=sys.stderr, flush=True)
-        if not run.live:
+        if not run.live or run.realtime:
             preview = run.source[0]
         worker = SlamWorker(run.start(), start_paused=args.paused)
         source, export_dir = worker, out

@@ -36,6 +36,9 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
              f"{spf} · Gaussians **{snap.num_gaussians:,}**",
              f"{'ATE' if ended else 'ATE so far'}: {ate} · keyframes: {len(snap.keyframes)}"
              f"{loop_count_text(snap.loops)}"] + loop_status_lines(snap.loops)
+    if snap.received is not None:
+        received, dropped = snap.received
+        lines.append(f"Frames received: {received} · processed {received - dropped} · dropped **{dropped}**")
     if snap.skipped_frames:
         index, reason = snap.skipped_frames[-1]
         lines.append(f"⚠ {len(snap.skipped_frames)} bad frame(s) skipped; last: {reason}")

@@ -109,4 +109,7 @@ class LiveSource(FrameSource):
         return self.received - self.delivered
 
     def stats(self) -> dict:
-        return dict(received=self.received, dropped=self.dropped)
+        """metrics.json's figures: frames received, dropped, and the share of them processed."""
+        received = self.received
+        return dict(received=received, dropped=self.dropped,
+                    processed_share=self.delivered / received if received else None)

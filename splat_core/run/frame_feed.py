@@ -5,7 +5,7 @@
 
 A capture is read by index (`indices`: every stride-th frame, at most max_frames); a LiveSource
 (io/source.py, e.g. nerfcapture://) is pulled with next_frame() and `indices` grows as frames
-arrive. A bad frame is skipped with a one-line warning; a capture whose first
+arrive; a capture played back in real time (io/playback.py) is pulled by index (next_index()). A bad frame is skipped with a one-line warning; a capture whose first
 MAX_LEADING_BAD_FRAMES frames are all unusable is refused as a whole.
 """
 
@@ -77,7 +77,7 @@ def input_record(source: FrameSource) -> dict | None:
     folder it was recorded to, whose format is detected); None for the synthetic scene."""
     if getattr(source, "path", None) is None:
         return None
-    live = isinstance(source, LiveSource)
+    live = isinstance(source, LiveSource) and not hasattr(source, "next_index")   # a playback: its capture's
     return dict(path=str(Path(source.path).resolve()), format=None if live else source.format_name)
 
 
@@ -119,7 +119,11 @@ class FrameFeed:
         held = []
         while self.total is None or self.cursor < self.total:
             pulled = None
-            if self.streaming:
+            if self.streaming and hasattr(self.source, "next_index"):   # a capture played back (io/playback.py)
+                if (index := self.source.next_index()) is None:
+                    break
+                self.indices.append(index)
+            elif self.streaming:
                 if (pulled := self.source.next_frame()) is None:   # the stream ended
                     break
                 self.indices.append(pulled.index)

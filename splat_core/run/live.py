@@ -23,7 +23,10 @@ published version is more than `live.max_lag` frames behind the frame it is abou
 So a fast tracker is never more than max_lag frames beyond the map, and on a machine where
 mapping is slower than tracking the mapper covers max_lag + 1 frames per step. Waiting is the
 only coupling: the tracker never blocks on the mapper's work otherwise, and the mapper never
-waits for the tracker.
+waits for the tracker. With `live.wait: false` (the `live` preset) the tracker never waits after
+frame 0: it tracks against whatever version is newest, and each mapper step maps the keyframes
+and the newest frame of everything handed over meanwhile. `stats()` reports the lag (frame index
+minus the newest frame of the version it was tracked against), in frames and in keyframes.
 
 Cores: under Numba's thread-safe "omp" layer the two threads run their kernels at the same time
 (parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
@@ -45,6 +48,7 @@ import threading
 import time
 from collections import deque
 
+import numpy as np
 import torch
 
 from ..config import LiveConfig
@@ -75,6 +79,8 @@ class LiveEngine(SlamReads):
         self.mapper_steps = 0
         self.mapper_seconds = 0.0
         self.wait_seconds = 0.0
+        self.lags: list[int] = []           # per tracked frame: its index minus the newest frame of its map version
+        self.lag_keyframes: list[int] = []  # ... the keyframes between them (tracked, not yet in that version)
         self.num_added = self.num_pruned = 0
         # Loop closure (splat_core/loop/) runs in this mapper thread after a keyframe; while it runs the
         # tracker does not wait for the map (a loop never stalls tracking), and its pose edits happen
@@ -118,7 +124,7 @@ class LiveEngine(SlamReads):
         start = time.perf_counter()
         version, t, w2c, tracked = self._track(frame, w2c_given)
         lost = self.slam.lost_tracking.reason
-        if lost(t) is not None and any(lost(k) is None for k in range(version.frame_index + 1, t)):
+        if self.config.wait and lost(t) is not None and any(lost(k) is None for k in range(version.frame_index + 1, t)):
             # Lost against a map that lacks frames tracked before this one: a jump into what those
             # frames saw finds no map there yet. Wait until everything handed over is mapped and track
             # once more (the sequential engine always has it); only a lost frame ever waits so.
@@ -126,6 +132,9 @@ class LiveEngine(SlamReads):
             waited += self._wait_for_map(t, max_lag=0)
             start = time.perf_counter()
             version, t, w2c, tracked = self._track(frame, w2c_given)
+        if t > 0:                 # the mapper's lag behind this frame's map version (frame 0 has no map)
+            self.lags.append(t - version.frame_index)
+            self.lag_keyframes.append(sum(self.slam.is_keyframe(k) for k in range(version.frame_index + 1, t)))
         with self._cond:
             loops, self._new_loops = self._new_loops, []
         # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
@@ -150,15 +159,21 @@ class LiveEngine(SlamReads):
         return self.slam.latest_version()
 
     def stats(self) -> dict:
-        return dict(live=dict(max_lag=self.config.max_lag, mapper_steps=self.mapper_steps,
+        lags = dict(lag_frames_median=float(np.median(self.lags)), lag_frames_max=int(max(self.lags)),
+                    lag_keyframes_median=float(np.median(self.lag_keyframes)),
+                    lag_keyframes_max=int(max(self.lag_keyframes))) if self.lags else {}
+        return dict(live=dict(max_lag=self.config.max_lag, wait=self.config.wait, mapper_steps=self.mapper_steps,
                               mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
-                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned))
+                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned, **lags))
 
     def _wait_for_map(self, t: int, max_lag: int | None = None) -> float:
         """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
         configured one); returns seconds waited."""
         start = time.perf_counter()
-        need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))
+        if max_lag is None and not self.config.wait:
+            need = 0                         # only frame 0 must be in the map (nothing to track against before)
+        else:
+            need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))
         with self._cond:
             while t > 0 and self._mapped < need and self.error is None and not self._closing_loop:
                 self._cond.wait(0.5)

@@ -145,11 +145,16 @@ class Pipeline:
         given = None
         if self.config.tracking.use_reference_poses:
             given = invert_pose(self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0]))
+        begun = time.perf_counter()
         result = self.engine.process(frame, given)
+        if k == 0 and self.streaming:
+            # A live source's clock runs from its second frame (io/playback.py): the first is
+            # mapped before it is asked for (the live engine would wait for that anyway).
+            self.engine.drain()
         result.frame = frame
         now = time.perf_counter()   # wall time since the last frame (the first: its own processing)
         wall = now - self._last_step if self._last_step is not None else \
-            result.tracking_seconds + result.mapping_seconds
+            now - begun if self.streaming else result.tracking_seconds + result.mapping_seconds
         self._last_step = now
         self.references.append(frame.c2w_ref)
         self.records.append(dict(

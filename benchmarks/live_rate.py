@@ -1,0 +1,94 @@
+"""Live rate side by side: the sequential engine on the `cpu` preset against the live engine on the
+`live` preset (and that run again as a real-time playback, `--realtime`), per sequence, in one
+invocation. Prints a markdown table (and, with --json, the rows).
+
+    python benchmarks/live_rate.py                                   # synthetic + 7-Scenes (first 100 frames)
+    python benchmarks/live_rate.py --sequences synthetic --max-frames 30
+
+s/frame: `wall_seconds` of metrics.json (end of one frame to the end of the next; the median skips
+frame 0, the mean includes frame 0 and the final drain of the live mapper). Lag: frame index minus
+the newest frame in the map version it was tracked against (live engine only). A real-time row
+processes only the frames it was handed (the others dropped): its ATE and PSNR are over those.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import DATA, ROOT, machine_line  # noqa: E402
+
+RUNS = [("cpu", "sequential", None), ("live", "live", None), ("live", "live", "realtime")]
+
+
+def run(input_path, preset: str, engine: str, realtime: str | None, out: Path, max_frames: int | None) -> dict:
+    cmd = [sys.executable, "-m", "app.cli", "run", "--input", str(input_path), "--out", str(out), "--config", preset,
+           "--engine", engine, "--device", "cpu", "--quiet"] + (["--realtime"] if realtime else [])
+    if max_frames:
+        cmd += ["--max-frames", str(max_frames)]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+    if proc.returncode != 0:
+        return {"error": (proc.stderr.strip().splitlines() or [f"exit {proc.returncode}"])[-1]}
+    m = json.loads((out / "metrics.json").read_text())
+    live = m.get("live", {})
+    return dict(frames=m["frames"], received=m.get("received"), dropped=m.get("dropped"),
+                median=m.get("wall_seconds_per_frame_median"), mean=m.get("wall_seconds_per_frame"),
+                ate=m.get("ate_rmse_cm"), psnr=m.get("psnr"), lag_median=live.get("lag_frames_median"),
+                lag_max=live.get("lag_frames_max"), lag_kf_max=live.get("lag_keyframes_max"),
+                wait=live.get("tracker_wait_seconds"), keyframes=m.get("keyframes"))
+
+
+def fmt(value, digits: int = 2) -> str:
+    return "–" if value is None else f"{value:.{digits}f}" if isinstance(value, float) else str(value)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--sequences", default="synthetic,7scenes_redkitchen_300")
+    p.add_argument("--max-frames", type=int, default=100, help="limit the real sequences (default 100)")
+    p.add_argument("--work", default=None)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args()
+    work = Path(args.work or tempfile.mkdtemp(prefix="live_rate_"))
+    load = os.getloadavg()
+    print(f"{datetime.date.today()} · {machine_line()} · load average at start "
+          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}", flush=True)
+    rows = []
+    for seq in args.sequences.split(","):
+        path = "synthetic" if seq == "synthetic" else DATA / seq
+        limit = None if seq == "synthetic" else args.max_frames
+        for preset, engine, realtime in RUNS:
+            out = work / f"{seq}__{preset}__{engine}{'__rt' if realtime else ''}"
+            row = dict(sequence=seq if limit is None else f"{seq} (first {limit})", preset=preset,
+                       engine=engine + (" --realtime" if realtime else ""),
+                       **run(path, preset, engine, realtime, out, limit))
+            rows.append(row)
+            print(json.dumps(row), file=sys.stderr, flush=True)
+    print("\n| sequence | preset | engine | frames (received) | median s/frame | frames/s (median) | "
+          "mean s/frame incl. drain | ATE cm | PSNR dB | lag frames median / max | lag keyframes max |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        if "error" in r:
+            print(f"| {r['sequence']} | {r['preset']} | {r['engine']} | error: {r['error']} |||||||")
+            continue
+        frames = f"{r['frames']}" + (f" ({r['received']})" if r["received"] is not None else "")
+        rate = fmt(1.0 / r["median"], 1) if r["median"] else "–"
+        lag = "–" if r["lag_median"] is None else f"{r['lag_median']:g} / {r['lag_max']}"
+        print(f"| {r['sequence']} | {r['preset']} | {r['engine']} | {frames} | {fmt(r['median'])} | {rate} | "
+              f"{fmt(r['mean'])} | {fmt(r['ate'])} | {fmt(r['psnr'])} | {lag} | {fmt(r['lag_kf_max'])} |")
+    load = os.getloadavg()
+    print(f"\nload average at end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+    if args.json:
+        print(json.dumps(rows, indent=1))
+
+
+if __name__ == "__main__":
+    main()
