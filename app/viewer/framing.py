@@ -45,6 +45,7 @@ class MapFraming:
         self.view: tuple | None = None          # (position, look_at, radius) last framed
         self._sent: dict[int, list] = {}        # client -> poses this class gave its camera
         self.moved: set[int] = set()            # clients whose visitor took over the camera
+        self._acked: set[int] = set()           # clients that have reported a pose of ours
         self._lock = threading.Lock()
 
     def attach(self, client: viser.ClientHandle) -> None:
@@ -57,20 +58,24 @@ class MapFraming:
         with self._lock:
             self._sent.pop(client_id, None)
             self.moved.discard(client_id)
+            self._acked.discard(client_id)
 
     def follows(self, client_id: int) -> bool:
         return client_id in self._sent and client_id not in self.moved
 
     def _on_camera(self, client_id: int, camera) -> None:
-        position, look_at = np.asarray(camera.position, np.float64), np.asarray(camera.look_at, np.float64)
+        position = np.asarray(camera.position, np.float64)
         with self._lock:
             sent = self._sent.get(client_id)
             if sent is None or client_id in self.moved:
                 return
             tol = 1e-3 * max(1.0, float(np.linalg.norm(sent[-1][0] - sent[-1][1])))
-            # each of the two as sent (a page may report one set before the other arrives)
-            if not (any(np.allclose(position, p, atol=tol) for p, _ in sent)
-                    and any(np.allclose(look_at, a, atol=tol) for _, a in sent)):
+            # the position only: a page reports look-at points of its own (orbit target resets) while
+            # its camera stays put; every way of moving the camera (orbit, pan, zoom, fly to) moves it
+            ours = any(np.allclose(position, p, atol=tol) for p, _ in sent)
+            if ours:
+                self._acked.add(client_id)
+            elif client_id in self._acked:     # before that, a page reports its own start-up pose
                 self.moved.add(client_id)
 
     def update(self, snap: MapSnapshot) -> bool:
