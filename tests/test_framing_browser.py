@@ -64,11 +64,11 @@ def test_default_view_shows_the_map_not_the_frustums(browser, server):
         def settled(img):               # splats fade in and frustum images decode: two renders agree
             still, last[0] = changed_pixels(img, last[0]) < 20, img
             return still
-        full = poll_render(client, settled, 90, "default view settled")
         shadow = client.scene.add_frame("/map", show_axes=False, visible=False)
-        no_map = poll_render(client, lambda img: changed_pixels(img, full) > 100, 60, "map hidden")
         no_map = poll_render(client, settled, 60, "map hidden settled")
         shadow.remove()
+        poll_render(client, lambda img: changed_pixels(img, no_map) > 100, 60, "map shown")
+        full = poll_render(client, settled, 90, "default view settled")
         coverage = changed_pixels(full, no_map) / (full.shape[0] * full.shape[1])
         assert coverage >= 0.30, coverage
         # the frustums are there (hiding them changes pixels), and 'Show keyframes' hides them
