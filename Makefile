@@ -36,9 +36,10 @@ chromium:
 	  else echo "warning: $(CHROMIUM) missing and apt-get unavailable; browser tests will be skipped"; fi; \
 	fi
 
-# The CPU kernels compile on first use (~60 s on two cores); app.warmup does it before the page opens.
+# The CPU kernels compile on a first run (~80 s on two cores): the viewer serves its page at once
+# and shows the compile's progress there and in the terminal before SLAM starts.
+# (`$(PY) -m app.warmup` compiles them ahead of time, e.g. when building an image.)
 demo: venv
-	$(PY) -m app.warmup
 	$(VENV)/bin/splatam-viewer
 
 test: test-venv chromium

@@ -33,14 +33,18 @@ class SlamWorker(threading.Thread):
     at most `live_max_width` pixels wide and at most every `live_interval_s` (the page shows
     about two updates a second; a render per frame would only slow SLAM down). Between those
     the panel keeps the last rendered frame, so image and render always belong together.
+    prepare: called as `prepare(report)` in the thread before the first frame (the viewer compiles
+    the CPU kernels there on a first run: app.warmup.KernelCompile.run); `report(text)` publishes
+    `text` as the snapshot's message, which the page shows while there is no map.
     """
 
     def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
                  render_backend: str = "auto", live_max_width: int = 320,
                  map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0,
-                 live_interval_s: float = 0.4):
+                 live_interval_s: float = 0.4, prepare=None):
         super().__init__(name="slam-worker", daemon=True)
         self.pipeline = pipeline
+        self.prepare = prepare
         self.live_render = live_render
         self.render_backend = render_backend
         self.live_max_width = live_max_width
@@ -120,6 +124,9 @@ class SlamWorker(threading.Thread):
     # ------------------------------------------------------------------ the thread
     def run(self) -> None:
         try:
+            if self.prepare is not None:
+                self.prepare(lambda text: self._publish(message=text))
+                self._publish(message="")
             while True:
                 with self._cond:
                     if not self._stop_requested and self._paused and self._steps_requested == 0:

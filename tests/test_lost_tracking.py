@@ -241,7 +241,7 @@ def test_the_viewer_shows_a_lost_track():
     from app.snapshot import MapSnapshot, freeze_gaussians
     from helpers.viewer import blob_map
     from app.viewer.panels import status_markdown
-    from app.viewer.scene import CameraLayer
+    from app.viewer.cameras import CameraLayer
 
     c2w = np.stack([np.eye(4)] * 6)
     snap = lambda frame, lost: MapSnapshot(version=1, state="running", frame_index=frame, total_frames=10,  # noqa: E731

@@ -115,7 +115,7 @@ def main(args) -> int:
     from app.viewer.access import Access
 
     access = Access.for_host(args.host, share=args.share, token=args.token)
-    first_note = preview = None
+    preview = compiling = None
 
     worker = stream = None
     if args.open:
@@ -136,21 +136,21 @@ def main(args) -> int:
             if not run.realtime:
                 print(run.waiting_message(), file=sys.stderr, flush=True)
             stream = run.source
-        from app.warmup import COMPILING_NOTE, kernels_compiled
+        from app.warmup import KernelCompile, kernels_compiled
 
-        if not kernels_compiled():
-            first_note = COMPILING_NOTE
-            print(COMPILING_NOTE, file=sys.stderr, flush=True)
+        if not kernels_compiled():      # a first run: the page opens at once and shows the compile
+            compiling = KernelCompile()
         if not run.live or run.realtime:
             preview = run.source[0]
-        worker = SlamWorker(run.start(), start_paused=args.paused)
+        worker = SlamWorker(run.start(), start_paused=args.paused,
+                            prepare=compiling.run if compiling is not None else None)
         source, export_dir = worker, out
         what = "\n".join(run.lines())
 
     server = start_server(args.host, args.port, access)
     app = build_viewer(server, source, export_dir=export_dir, map_updates=args.map_updates,
                       browser_splats=args.browser_splats, draw_while_running=args.draw_while_running,
-                      access=access, first_note=first_note, preview_frame=preview)
+                      access=access, preview_frame=preview)
     _stop_on_sigterm()
     announced = False
     try:                                # from here on Ctrl-C stops SLAM and writes the run folder
@@ -158,8 +158,10 @@ def main(args) -> int:
             worker.start()
         print(what, file=sys.stderr)
         print_urls(access, args.host, server.get_port())
+        progress = CompileProgress(compiling)
         while True:
             time.sleep(0.5)
+            progress.tick()
             if worker is not None and not announced and not worker.is_alive():
                 announced = True
                 snap = worker.latest()
@@ -191,6 +193,32 @@ def print_urls(access, host: str, port: int) -> None:
         print("  anyone with this URL (its token) can control the run; --share view gives a view-only URL",
               flush=True)
     print(f"URL {url}", flush=True)   # machine-readable line for scripts and tests
+
+
+class CompileProgress:
+    """The kernel compile's progress in the terminal (app.warmup.KernelCompile): a bar redrawn in
+    place on a terminal, a line per kernel otherwise; then one line when it is done."""
+
+    def __init__(self, compiling, stream=sys.stderr):
+        self.compiling, self.stream = compiling, stream
+        self.tty = stream.isatty()
+        self._shown = None
+
+    def tick(self) -> None:
+        job = self.compiling
+        if job is None or job.started_at is None:
+            return
+        if job.finished:
+            print(("\r" if self.tty else "") + f"CPU kernels compiled in {job.seconds:.0f} s; starting SLAM",
+                  file=self.stream, flush=True)
+            self.compiling = None
+            return
+        line = job.bar()
+        if self.tty:
+            print("\r" + line, end="", file=self.stream, flush=True)
+        elif line.rsplit(" · ", 1)[0] != self._shown:
+            self._shown = line.rsplit(" · ", 1)[0]
+            print(line, file=self.stream, flush=True)
 
 
 def report_written(worker) -> None:

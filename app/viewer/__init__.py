@@ -2,7 +2,9 @@
 
     app.py          ViewerApp: wiring and the update loop; build_viewer(server, source)
     feed.py         SnapshotFeed: the source's snapshots merged with a refined map (the viewer's one source)
-    scene.py        the 3D layers: map splats, cameras, trajectories, frustums
+    scene.py        the map's splat chunks per keyframe
+    cameras.py      keyframe frustums (the newest with images), trajectories, the current camera
+    framing.py      the default view: frames the map on every page until its visitor moves the camera
     scrub.py        keyframe scrubbing, per page (its own Keyframes panel and view of the map)
     panels.py       status, plots and the live images panel; the shared run controls
     control_gui.py  GUI built only on the pages of visitors who may control the run

@@ -36,13 +36,15 @@ from .assets import WebAssets, apply_theme, load_assets
 from .control_gui import ControlGui
 from .export_panel import ExportPanel
 from .feed import SnapshotFeed, controls_of
+from .framing import MapFraming
 from .loops import LoopLayer
 from .mesh_layer import MeshLayer
 from .measure import MeasureTool
 from .novel_view import MODES, NovelView, RenderService
 from .panels import Panels
 from .refine_panel import RefinePanel
-from .scene import CameraLayer, MapLayer
+from .cameras import CameraLayer
+from .scene import MapLayer
 from .scrub import KeyframeScrubber
 from .video_panel import CameraPathPanel
 
@@ -96,6 +98,7 @@ class ViewerApp:
         self.camera_layer = CameraLayer(server, self.assets.colors, self.scrubber.on_frustum_click)
         self.scrubber.camera_layer = self.camera_layer
         self.loop_layer = LoopLayer(server, self.assets.colors)
+        self.framing = MapFraming(server)
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
                              draw_while_running, controls=self.control_gui)
         self.panels.first_note = first_note
@@ -118,7 +121,6 @@ class ViewerApp:
         self._stop = threading.Event()
         self._wake = threading.Event()
         self._reapply = threading.Event()
-        self._camera_placed = False
         self.updates = 0
         self.first_map_at: float | None = None
 
@@ -138,6 +140,7 @@ class ViewerApp:
         p.map_updates.on_update(self._on_map_updates)
         p.browser_splats.on_update(self._on_browser_splats)
         p.draw_while_running.on_update(self._on_draw_while_running)
+        p.show_keyframes.on_update(lambda _: self.camera_layer.set_keyframes_visible(p.show_keyframes.value))
 
     def _control(self, action: str) -> None:
         getattr(self.controls, action)()
@@ -166,6 +169,7 @@ class ViewerApp:
         return self.access.role(client)
 
     def _on_client_connect(self, client: viser.ClientHandle) -> None:
+        self.framing.attach(client)
         if self.role(client) == "control":
             self.control_gui.attach(client)
         else:
@@ -188,6 +192,7 @@ class ViewerApp:
 
     def _on_client_disconnect(self, client: viser.ClientHandle) -> None:
         self.control_gui.detach(client.client_id)
+        self.framing.detach(client.client_id)
         self.scrubber.detach(client.client_id)
         with self._lock:
             view = self.novel_views.pop(client.client_id, None)
@@ -238,12 +243,11 @@ class ViewerApp:
                 self.first_map_at = time.monotonic()
             self.camera_layer.update(snap)
             self.loop_layer.update(snap)
+            self.framing.update(snap)
         self.loop_layer.notify(self.server.get_clients().values(), snap)
         if prev is None or prev.map_version != snap.map_version or force:   # our renders follow
             for view in list(self.novel_views.values()):                    # every map version
                 view.refresh()
-        if not self._camera_placed and snap.num_gaussians:
-            self._place_initial_camera(snap)
         p = self.panels
         p.update_status(snap)
         p.update_plots(snap)
@@ -255,16 +259,6 @@ class ViewerApp:
         self.updates += 1
         self.applied = snap      # fully pushed to viser (tests and the benchmark wait on this)
         return True
-
-    def _place_initial_camera(self, snap: MapSnapshot) -> None:
-        """New clients start behind the first camera, looking at the middle of the map."""
-        self._camera_placed = True
-        centre = np.median(snap.gaussians["means"], axis=0).astype(np.float64)
-        dist = max(float(np.linalg.norm(centre)), 0.3)
-        c2w0 = snap.estimated_c2w[0] if len(snap.estimated_c2w) else np.eye(4)
-        back = c2w0[:3, :3] @ np.array([0.0, -0.3, -0.8]) * dist
-        self.server.initial_camera.look_at = tuple(centre)
-        self.server.initial_camera.position = tuple(c2w0[:3, 3] + back)
 
     # ------------------------------------------------------------------ our renderer
     def _render_map(self, intr: Intrinsics, w2c: np.ndarray, snap: MapSnapshot | None = None,

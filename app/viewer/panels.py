@@ -120,6 +120,9 @@ class Panels:
             self.status = gui.add_markdown("Starting…")
             self.progress = gui.add_progress_bar(0.0, animated=False)
             self.frame_text = gui.add_text("Frames processed", "0", disabled=True)
+            self.show_keyframes = gui.add_checkbox(
+                "Show keyframes", True, hint="The keyframe cameras in the 3D view (the newest few with their "
+                                             "images) and the loop edges between them, for every visitor")
         cgui = controls if controls is not None else gui
         with cgui.add_folder("Run controls (shared by every visitor)", order=0.5, visible=has_controls):
             self.pause_button = cgui.add_button("Pause", icon=viser.Icon.PLAYER_PAUSE, visible=has_controls,

@@ -1,5 +1,5 @@
-"""The 3D scene: the map as splat chunks per keyframe, keyframe frustums, trajectories and the
-current camera. Only this module and the panels call viser's scene API.
+"""The 3D scene's map: the splat chunks per keyframe (cameras.py: keyframe frustums, trajectories
+and the current camera). Only these modules and the panels call viser's scene API.
 
 Map layout (docs/viewer-notes.md §1.2): viser has no splat append and every change costs O(N_total) in
 the browser, so the map is split by birth keyframe. Node `/map/kf_<frame>` holds the Gaussians
@@ -44,8 +44,6 @@ import time
 
 import numpy as np
 import viser
-
-from splat_core.camera import rotmat_to_quat
 
 from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot, keyframe_buckets
 
@@ -254,96 +252,3 @@ class MapLayer:
         self._fingerprints.pop(name, None)
         if handle is not None:
             handle.remove()
-
-
-def wxyz_position(c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    c2w = np.asarray(c2w, np.float64)
-    return rotmat_to_quat(c2w[:3, :3]), c2w[:3, 3].copy()
-
-
-def trajectory_segments(c2w: np.ndarray) -> np.ndarray:
-    """(T,4,4) poses -> (S,2,3) line segments between consecutive finite camera centres."""
-    centres = np.asarray(c2w, np.float64)[:, :3, 3]
-    centres = centres[np.all(np.isfinite(centres), axis=1)]
-    if len(centres) < 2:
-        return np.zeros((0, 2, 3), np.float32)
-    return np.stack([centres[:-1], centres[1:]], axis=1).astype(np.float32)
-
-
-class CameraLayer:
-    """Keyframe frustums (with thumbnails, clickable), trajectories and the current camera."""
-
-    def __init__(self, server: viser.ViserServer, colors: dict, on_keyframe_click=None):
-        self.server = server
-        self.colors = colors
-        self.on_keyframe_click = on_keyframe_click
-        self.frustum_scale: float | None = None
-        self._frustums: dict[int, viser.CameraFrustumHandle] = {}
-        self._current = None
-        self.lost_shown = False   # the current camera is drawn in the "lost" colour
-        self._traj_drawn = {"estimated": b"", "reference": b""}   # the poses drawn (a loop moves old ones)
-        self._lock = threading.RLock()
-
-    @property
-    def keyframe_frames(self) -> list[int]:
-        return list(self._frustums)
-
-    def _scale_for(self, snap: MapSnapshot) -> float:
-        if self.frustum_scale is None:
-            means = snap.gaussians["means"]
-            if len(means) == 0 and len(snap.estimated_c2w) < 2:
-                return 0.1
-            extent = float(np.median(np.linalg.norm(means - np.median(means, axis=0), axis=1))) \
-                if len(means) else float(np.ptp(snap.estimated_c2w[:, :3, 3], axis=0).max())
-            self.frustum_scale = float(np.clip(0.15 * extent, 0.02, 0.5))
-        return self.frustum_scale
-
-    def update(self, snap: MapSnapshot) -> None:
-        with self._lock:
-            scale = self._scale_for(snap)
-            intr = snap.intrinsics
-            fov = intr.fov_y if intr else np.deg2rad(55.0)
-            aspect = intr.width / intr.height if intr else 4.0 / 3.0
-            for kf in snap.keyframes:
-                wxyz, pos = wxyz_position(kf.c2w)
-                if kf.frame_index in self._frustums:       # moved by a loop correction: follow it
-                    handle = self._frustums[kf.frame_index]
-                    if not (np.allclose(handle.position, pos, atol=1e-6) and np.allclose(handle.wxyz, wxyz, atol=1e-7)):
-                        handle.wxyz, handle.position = wxyz, pos
-                    continue
-                handle = self.server.scene.add_camera_frustum(
-                    f"/keyframes/kf_{kf.frame_index:06d}", fov=fov, aspect=aspect, scale=scale,
-                    thickness=1.5, thickness_units="screen", color=self._color_of(kf.frame_index),
-                    image=kf.thumbnail, format="jpeg", jpeg_quality=80, wxyz=wxyz, position=pos)
-                if self.on_keyframe_click is not None:
-                    handle.on_click(lambda ev, f=kf.frame_index: self.on_keyframe_click(ev, f))
-                self._frustums[kf.frame_index] = handle
-            self._update_trajectory("estimated", snap.estimated_c2w)
-            if snap.reference_c2w is not None:
-                self._update_trajectory("reference", snap.reference_c2w)
-            if len(snap.estimated_c2w) and snap.state != "browse":
-                wxyz, pos = wxyz_position(snap.estimated_c2w[-1])
-                color = self.colors["lost"] if snap.tracking_lost else self.colors["current"]
-                self.lost_shown = snap.tracking_lost
-                if self._current is None:
-                    self._current = self.server.scene.add_camera_frustum(
-                        "/camera/current", fov=fov, aspect=aspect, scale=scale * 1.3,
-                        thickness=3.0, thickness_units="screen", color=color,
-                        wxyz=wxyz, position=pos)
-                else:
-                    self._current.wxyz, self._current.position, self._current.color = wxyz, pos, color
-
-    def _update_trajectory(self, which: str, c2w: np.ndarray) -> None:
-        drawn = np.ascontiguousarray(c2w, np.float64).tobytes()
-        if drawn == self._traj_drawn[which]:
-            return
-        self._traj_drawn[which] = drawn
-        seg = trajectory_segments(c2w)
-        if len(seg) == 0:
-            return
-        self.server.scene.add_line_segments(
-            f"/trajectory/{which}", seg, colors=np.array(self.colors[which], np.uint8),
-            thickness=2.5 if which == "estimated" else 2.0, thickness_units="screen")
-
-    def _color_of(self, frame_index: int):
-        return self.colors["keyframe"]

@@ -32,7 +32,7 @@ from splat_core.metrics import psnr
 from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from ..snapshot import MapSnapshot
 from .loops import LOOP_COLOR, loop_segments
-from .scene import wxyz_position
+from .cameras import wxyz_position
 
 FADED_COLOR = (150, 150, 160)
 

@@ -23,7 +23,7 @@ from splat_core.errors import InputError
 
 from .download import produce_and_send
 from .novel_view import browser_camera
-from .scene import wxyz_position
+from .cameras import wxyz_position
 
 
 SIZES = ("640x480", "320x240", "1280x720", "1920x1080")
