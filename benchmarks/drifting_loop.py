@@ -1,7 +1,7 @@
 """Run SplaTAM on a synthetic loop with drifting odometry, with or without loop closure, and measure
 ATE and the map's depth error against the noise-free depth at every 10th frame's estimated pose
 (its mean over pixels, which the tails of doubled surfaces and depth edges dominate, and its
-median). Used by benchmarks/loops.py and tests/test_loop_closure.py (benchmarks/ is on their
+median). Used by benchmarks/loops.py and tests/loop/test_loop_closure.py (benchmarks/ is on their
 sys.path); a harness around the engine, so it lives here rather than in splat_core."""
 
 from __future__ import annotations

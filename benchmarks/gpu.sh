@@ -171,7 +171,7 @@ fi
 
 # ------------------------------------------------------------------ pytest -m cuda
 if has pytest; then
-  FILES=$(grep -l "mark.cuda" tests/test_*.py | tr '\n' ' ')
+  FILES=$(grep -rl --include="test_*.py" "mark.cuda" tests | tr '\n' ' ')
   run pytest_cuda "$L_PYTEST" - "$PY" -m pytest -m cuda -q -p no:cacheprovider --junitxml="$WORK/junit.xml" $FILES
   "$PY" - "$WORK/junit.xml" "$OUTDIR/pytest_cuda.json" "$FILES" <<'EOF'
 import json, sys, xml.etree.ElementTree as ET

@@ -11,7 +11,7 @@ SHA-256 of trajectory.txt and map.ply are compared. Prints JSON: one row per seq
 digests, `identical` per file, the ATE and s/frame median of both, and `all_identical`.
 
 `lap` is the synthetic lap with drifting given poses whose loop corrections are applied
-(benchmarks/drifting_loop.py, as tests/test_loop_closure.py runs it): each checkout runs it with its
+(benchmarks/drifting_loop.py, as tests/loop/test_loop_closure.py runs it): each checkout runs it with its
 own harness and the digests of every frame's pose and of the map's arrays are compared.
 """
 

@@ -5,7 +5,7 @@ completion  fraction of the truth's observed surface points within `threshold` (
 
 `scene_surface_distance(scene, points)` is the exact distance from world points to the nearest
 surface of a `synthetic.SyntheticScene` (room faces, boxes, spheres).
-Used by benchmarks/mesh.py and tests/test_mesh_export.py (benchmarks/ is on their sys.path).
+Used by benchmarks/mesh.py and tests/export/test_mesh_export.py (benchmarks/ is on their sys.path).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """OpenCV's image operations that the direct alignment's pyramid uses, in torch (any device),
 with OpenCV's numbers: cv2.resize (INTER_NEAREST, INTER_AREA when shrinking, INTER_LINEAR when
 enlarging), cv2.Sobel with ksize 3 and its reflect-101 border, cv2.erode with a 3 x 3 square.
-tests/test_direct_align_torch.py checks each against OpenCV."""
+tests/align/test_direct_align_torch.py checks each against OpenCV."""
 
 from __future__ import annotations
 

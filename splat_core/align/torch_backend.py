@@ -3,7 +3,7 @@
 The same Gauss-Newton pose initialiser as the Numba version (point-to-plane depth + grey levels,
 Huber weights, an image pyramid, `passes` renders), with the same numbers in float64: the pyramid
 reproduces OpenCV's resizes (nearest, area averaging, bilinear), Sobel gradients (reflect-101
-border) and erosion (no erosion at the border), and tests/test_direct_align_torch.py checks the
+border) and erosion (no erosion at the border), and tests/align/test_direct_align_torch.py checks the
 normal equations and the solved pose against the Numba version on CPU tensors (the OpenCV
 operations in torch: cv_torch.py).
 

@@ -6,7 +6,7 @@
 
 `run` is a `splat_core.refine.run_data.RunData` (load_run_data(RUN_DIR)). Poses in our files and
 in memory follow DESIGN.md §3 (OpenCV axes, w2c in memory); each writer converts to its target's
-convention in one place, and tests/test_handoffs.py checks the conversion by round trip.
+convention in one place, and tests/export/test_handoffs.py checks the conversion by round trip.
 """
 
 from .colmap import write_colmap

@@ -117,7 +117,7 @@ def _cube_mask(tsdf: np.ndarray, weight: np.ndarray, max_step: float) -> np.ndar
                 np.maximum(hi, tsdf[sl], out=hi)
     cube &= (hi - lo) <= max_step
     # scikit-image's marching_cubes meshes the cube [x-1, x] x [y-1, y] x [z-1, z] where mask[x, y, z]
-    # is True (measured: tests/test_handoffs.py::test_marching_cubes_mask_convention).
+    # is True (measured: tests/export/test_handoffs.py::test_marching_cubes_mask_convention).
     mask = np.zeros_like(ok)
     mask[1:, 1:, 1:] = cube
     return mask

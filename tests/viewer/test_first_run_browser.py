@@ -17,7 +17,7 @@ import pytest
 from common import CHROMIUM  # noqa: F401 (benchmarks/common.py, on sys.path via conftest)
 from helpers.viewer import wait_until
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 pytestmark = [pytest.mark.browser, pytest.mark.slow,
               pytest.mark.skipif(not Path(CHROMIUM).exists(), reason=f"{CHROMIUM} not installed")]

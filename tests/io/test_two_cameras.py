@@ -134,7 +134,7 @@ def test_info_reports_edge_agreement_and_the_lines_to_add(raw, two):
     assert after["two_cameras"] and after["edge_agreement"] > 1.5 * info["registration"]["edge_agreement"]
 
 
-DATA = __import__("pathlib").Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DATA = __import__("pathlib").Path(__file__).resolve().parents[2].parent / "shared" / "data"
 
 
 @pytest.mark.skipif(not (DATA / "7scenes_redkitchen_300").is_dir(), reason="shared data absent")

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
 
 from splat_core.loop.verify import pose_difference  # noqa: E402
 from splat_core.synthetic.loop import LoopSource  # noqa: E402

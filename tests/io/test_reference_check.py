@@ -11,7 +11,7 @@ from splat_core.io.checks import inconsistent_steps, reference_step_residuals
 from splat_core.metrics import ate_rmse, ate_rmse_segments
 from splat_core.synthetic import SyntheticSource
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 
 
 class ReferenceWithJump(SyntheticSource):

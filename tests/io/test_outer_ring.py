@@ -10,7 +10,7 @@ import sys
 import textwrap
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 HEAVY = ("torch", "numba", "cv2")
 RING = ("splat_core.run.run_folder", "splat_core.io.atomic", "splat_core.io.checkpoint", "splat_core.io.source",
         "app.batch", "app.batch.captures", "app.batch.state", "app.batch.summary", "app.batch.report",

@@ -248,7 +248,7 @@ def test_concurrent_renders_with_unsafe_threading_layer():
     from pathlib import Path
 
     env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue")
-    script = _WORKQUEUE_SCRIPT.format(tests=str(Path(__file__).parent))
+    script = _WORKQUEUE_SCRIPT.format(tests=str(Path(__file__).parents[1]))
     res = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
                          timeout=300)
     assert res.returncode == 0, f"exit {res.returncode}: {res.stdout[-2000:]} {res.stderr[-2000:]}"

@@ -26,7 +26,7 @@ from helpers.configs import TINY
 from helpers.hold import Hold
 from helpers.viewer import wait_until
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _broken(path: Path) -> Path:

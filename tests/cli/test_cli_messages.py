@@ -153,7 +153,7 @@ def test_ctrl_c_viewer_says_what_it_wrote_and_its_url_has_the_token(tmp_path):
     slow.write_text("base: cpu\nresolution: [48, 36]\ntracking: {iterations: 300}\n"
                     "mapping: {iterations: 300, first_frame_iterations: 2}\n")
     code = "import sys; from app.cli import viewer_main; sys.exit(viewer_main(sys.argv[1:]))"
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1]), os.environ.get("PYTHONPATH", "")]))
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[2]), os.environ.get("PYTHONPATH", "")]))
     proc = subprocess.Popen([sys.executable, "-c", code, "--host", "127.0.0.2", "--port", "0", "--out", str(out),
                              "--config", str(slow), "--engine", "sequential"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
