@@ -18,8 +18,6 @@ from pathlib import Path
 
 import splat_core
 
-COMPILING_NOTE = "compiling the CPU kernels: first run only (about a minute on two cores; cached afterwards)"
-
 # Kernel families by module: what the progress names while one of its kernels compiles.
 FAMILIES = {
     "splat_core.render.project_cpu": "renderer: projection",

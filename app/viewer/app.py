@@ -68,7 +68,7 @@ class ViewerApp:
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
                  draw_while_running: str = "splats", access: Access | None = None,
-                 first_note: str | None = None, preview_frame=None):
+                 preview_frame=None):
         self.server = server
         tolerate_malformed_messages()            # a bad websocket message is dropped, the page stays
         self.feed = SnapshotFeed(source)
@@ -101,7 +101,6 @@ class ViewerApp:
         self.framing = MapFraming(server)
         self.panels = Panels(server, self.assets.help_markdown, self.has_controls, map_updates, browser_splats,
                              draw_while_running, controls=self.control_gui)
-        self.panels.first_note = first_note
         if preview_frame is not None:
             self.panels.show_preview(preview_frame.color, preview_frame.depth, preview_frame.index)
         self.export_panel = ExportPanel(server, self.feed, export_dir=self.export_dir, gui=self.control_gui,

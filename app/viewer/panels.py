@@ -20,7 +20,7 @@ def _placeholder(h: int = 120, w: int = 320) -> np.ndarray:
     return np.full((h, w, 3), 40, np.uint8)
 
 
-def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
+def status_markdown(snap: MapSnapshot) -> str:
     if snap.state == "browse":
         lines = [f"**Browsing** {snap.message}", f"Gaussians: **{snap.num_gaussians:,}**",
                  f"Poses: {len(snap.estimated_c2w)} · keyframes: {len(snap.keyframes)}{loop_count_text(snap.loops)}"]
@@ -28,7 +28,7 @@ def status_markdown(snap: MapSnapshot, first_note: str | None = None) -> str:
             lines.append(f"ATE: {snap.ate_cm:.2f} cm")
         return "  \n".join(lines + loop_status_lines(snap.loops))
     if snap.state in ("starting", "running") and snap.num_gaussians == 0:   # no map yet (live: mapping lags)
-        return "  \n".join(first_frame_lines(snap, first_note))
+        return "  \n".join(first_frame_lines(snap))
     spf = f"{snap.seconds_per_frame:.2f} s/frame" if snap.seconds_per_frame is not None else "– s/frame"
     ate = f"{snap.ate_cm:.2f} cm" if snap.ate_cm is not None else "n/a (no reference poses)"
     ended = snap.state in ("finished", "stopped", "error")
@@ -60,11 +60,10 @@ STATE_WORDS = {"starting": "starting", "running": "running", "paused": "paused",
                "error": "**error**"}
 
 
-def first_frame_lines(snap: MapSnapshot, first_note: str | None = None) -> list[str]:
-    """What the page says before the first frame is done (it takes a minute on a first run)."""
+def first_frame_lines(snap: MapSnapshot) -> list[str]:
+    """What the page says before the first frame is done (on a first run the message is the kernel
+    compile's progress: app/warmup.py KernelCompile, through the worker)."""
     lines = [f"**Processing frame {max(snap.processed, 1)} / {snap.total_frames or '…'}** · {snap.state}"]
-    if first_note:
-        lines.append(f"⏳ {first_note}")
     lines.append(snap.message or "the first frame builds the map from scratch; the 3D view fills in after it")
     return lines
 
@@ -156,8 +155,6 @@ class Panels:
             gui.add_markdown(help_markdown)
 
     # ------------------------------------------------------------------ updates
-    first_note: str | None = None     # shown until frame 1 is done (app.warmup.COMPILING_NOTE on a first run)
-
     def show_preview(self, color: np.ndarray, depth: np.ndarray, frame_index: int = 0) -> None:
         """The capture's first images at once, before SLAM has processed them."""
         self.live_image.image = mosaic([[(to_uint8(color), ""), (colorize_depth(depth), "")]], tile_width=200)
@@ -165,7 +162,7 @@ class Panels:
                                      "it; our render of the map appears below it after the first frame.")
 
     def update_status(self, snap: MapSnapshot) -> None:
-        self.status.content = status_markdown(snap, self.first_note)
+        self.status.content = status_markdown(snap)
         total = max(snap.total_frames, 1)
         self.progress.value = 100.0 if snap.state == "browse" else 100.0 * snap.processed / total
         self.frame_text.value = str(max(snap.processed, 0))

@@ -40,6 +40,7 @@ class FakePipeline:
         self.out_dir = out_dir
         self.with_reference = with_reference
         self.config, self.intrinsics = Config(), INTR
+        self.streaming = False                     # not a LiveSource (SlamRun.streaming)
         self.map = GaussianMap.empty()
         self.kf: list[Keyframe] = []
         self.records: list[dict] = []

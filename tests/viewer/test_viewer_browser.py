@@ -4,6 +4,8 @@ state. Skipped when /usr/bin/chromium or playwright is missing."""
 
 from __future__ import annotations
 
+import re
+
 import time
 from pathlib import Path
 
@@ -131,7 +133,7 @@ def test_keyframe_slider_novel_view_and_download(browser, server, tmp_path):
         # the whole map: frame 0 red (keyframe 0) and frame 2 green (keyframe 2)
         poll_render(client, lambda img: red(img) > 100 and green(img) > 100, 90, "full map")
         # slider to the first keyframe through the page
-        row = page.locator("label", has_text="Keyframe").first.locator("xpath=ancestor::*[.//input][1]")
+        row = page.locator("label", has_text=re.compile(r"^Keyframe$")).first.locator("xpath=ancestor::*[.//input][1]")
         box = row.locator("input.mantine-NumberInput-input")
         box.fill("1")                                            # keyframes count from 1
         box.press("Enter")
