@@ -67,10 +67,13 @@ def test_default_view_shows_the_map_not_the_frustums(browser, server):
         shadow = client.scene.add_frame("/map", show_axes=False, visible=False)
         no_map = poll_render(client, settled, 60, "map hidden settled")
         shadow.remove()
-        poll_render(client, lambda img: changed_pixels(img, no_map) > 100, 60, "map shown")
-        full = poll_render(client, settled, 90, "default view settled")
-        coverage = changed_pixels(full, no_map) / (full.shape[0] * full.shape[1])
-        assert coverage >= 0.30, coverage
+
+        def coverage(img):
+            return changed_pixels(img, no_map) / (img.shape[0] * img.shape[1])
+        # The splats stream in and fade in over several renders (slowly on a loaded machine): wait
+        # for the state, not for two renders that happen to agree midway. Fails if it never comes.
+        full = poll_render(client, lambda img: coverage(img) >= 0.30, 180, "map pixels on 30% of the canvas")
+        assert coverage(full) >= 0.30
         # the frustums are there (hiding them changes pixels), and 'Show keyframes' hides them
         app.panels.show_keyframes.value = False
         assert not app.camera_layer.root.visible
