@@ -88,6 +88,12 @@ class Config:
     scene_radius_depth_ratio: float = setting(3.0, "scene radius = the first frame's largest depth / this "
                                               "(mapping.prune_big_ratio is relative to it)")
     seed: int = setting(0, "seed of the random choices (pixels, tiles, keyframe selection, RANSAC)")
+    estimate_registration: bool = setting(
+        True, "a capture whose camera file says colour and depth are not registered, and gives no colour camera: "
+        "estimate the colour camera from the capture's edges (splatam info --estimate-registration) and register "
+        "every frame; false: colour stays where it is and tracking uses depth alone",
+        trades="true: 2-4 s at the start; on 7-Scenes colour lines up with depth again (PSNR +2.6 dB, and "
+        "colour in tracking: docs/benchmarks.md, Two cameras)")
     checkpoint_every: int = setting(25, "write a checkpoint every n frames (--resume continues from it); 0 = never",
                                     unit="frames", trades="smaller: more writing, less lost when a run stops")
     eval_every: int = setting(5, "render metrics on every n-th frame at the end of a run", unit="frames",

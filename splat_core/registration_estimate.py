@@ -168,3 +168,22 @@ def estimate_registration(source, n_frames: int = 10) -> Estimate:
     corner = np.hypot(max(c.cx, c.width - 1 - c.cx), max(c.cy, c.height - 1 - c.cy))
     shift = abs(r - 1) * corner + r * c.fx * np.hypot(tx, ty) / float(np.median(data.points[:, 2]))
     return Estimate(r, (tx, ty, 0.0), data.score(1.0, 0.0, 0.0), data.score(r, tx, ty), cams, ids, float(shift))
+
+
+def register_from_estimate(source, n_frames: int = 10) -> str | None:
+    """For a capture whose camera file says colour and depth are not registered and names no colour
+    camera: estimate one from the capture and register every frame with it (source.use_two_cameras).
+    Returns the note to show, or None when the estimate finds nothing to correct (or the source
+    cannot register: a stream). Deterministic (fixed frames, a grid search): a resumed run finds
+    the same."""
+    if getattr(source, "live", False) or not hasattr(source, "use_two_cameras") or len(source) < 1:
+        return None
+    est = estimate_registration(source, n_frames)
+    if est.registered:
+        return None
+    source.use_two_cameras(est.cameras)
+    t = est.translation
+    return (f"colour and depth are not registered (camera file) and no colour camera is given: estimated from the "
+            f"capture (colour focal {est.cameras.color.fx:.1f}, offset {100 * t[0]:.2f}, {100 * t[1]:.2f} cm; edge "
+            f"agreement {est.before:.2f} -> {est.after:.2f}) and registered; `splatam info --estimate-registration` "
+            "prints the camera-file lines to fix it (docs/formats.md)")

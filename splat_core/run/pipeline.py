@@ -26,6 +26,7 @@ from ..frame import Frame
 from ..io.source import FrameSource
 from ..keyframes import Keyframe
 from ..memory import release_free_memory
+from ..registration_estimate import register_from_estimate
 from ..slam import FrameResult, MapVersion, SplaTAM
 from .engines import ENGINES, make_engine
 from .frame_feed import FrameFeed, input_record, resolve_device
@@ -75,6 +76,10 @@ class Pipeline:
             raise InputError(f"--engine {engine}: expected one of {', '.join(ENGINES)}")
         self.engine_name = engine
         self.notes: list[str] = []             # adjustments made for this input, shown by the CLI
+        if not source.registered and config.estimate_registration:
+            note = register_from_estimate(source)       # colour registered to depth when read, from now on
+            if note:
+                self.notes.append(note)
         if not source.registered and (config.tracking.color_weight or config.tracking.align.color_weight):
             # Colour a few pixels off the depth pulls the pose away from where the depth puts it
             # (7-Scenes: 4.0-4.5 cm ATE with colour, 2.5 cm without; docs/history/2026-11-23-cpu-preset-tracking.md).

@@ -143,3 +143,23 @@ def test_estimation_on_real_captures():
     assert e.cameras.color.fx == pytest.approx(525, rel=0.02) and not e.registered
     assert e.translation[0] == pytest.approx(-0.0254, abs=0.004)   # literature's Kinect v1 offset
     assert estimate_registration(open_capture(DATA / "sun3d_3dmatch_fragment1")).registered
+
+
+def test_a_raw_capture_is_registered_from_its_own_estimate(raw):
+    # The camera file says colour and depth are not registered and names no colour camera (as
+    # 7-Scenes'): the pipeline estimates the colour camera, registers every frame and tracks with
+    # colour; with estimate_registration off it keeps the old rule (depth alone).
+    from splat_core.config import load_config
+    from splat_core.run import Pipeline
+
+    pipe = Pipeline(open_capture(raw.path), load_config("cpu"), max_frames=2)
+    assert pipe.source.registered and pipe.source.two_cameras is not None
+    assert pipe.source.two_cameras.color.fx == pytest.approx(raw.color_intr.fx, rel=0.01)
+    assert "estimated from the capture" in pipe.notes[0] and pipe.config.tracking.color_weight > 0
+    frame = pipe.source[0]
+    registered = frame.color[frame.depth > 0]
+    exact = raw.source[raw.frames[0]].color[frame.depth > 0]
+    assert np.median(np.abs(registered - exact)) < 0.02        # colour from the right pixel again
+    off = Pipeline(open_capture(raw.path), load_config("cpu", {"estimate_registration": False}), max_frames=2)
+    assert not off.source.registered and off.config.tracking.color_weight == 0
+    assert "tracking uses depth alone" in off.notes[0]
