@@ -14,10 +14,11 @@ HANDOFF_FORMATS = ("colmap", "nerfstudio", "mesh")
 
 def add_handoff_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("colmap / nerfstudio / mesh (RUN_DIR must be a finished run folder)")
-    g.add_argument("--frames", default="keyframes", metavar="keyframes|all|N",
-                   help="colmap, nerfstudio: which frames (default keyframes; N: every Nth processed frame)")
+    g.add_argument("--frames", default=None, metavar="keyframes|all|N",
+                   help="which frames (N: every Nth processed frame); colmap, nerfstudio: default keyframes; "
+                        "mesh: the keyframes plus these, re-read from the capture (default 3)")
     g.add_argument("--input", default=None, metavar="CAPTURE",
-                   help="colmap, nerfstudio: the capture to re-read images from (default: the one the run recorded)")
+                   help="the capture to re-read images from (default: the one the run recorded)")
     g.add_argument("--max-points", type=int, default=None, help="colmap, nerfstudio: seed points at most (default 100000)")
     g.add_argument("--voxel", type=float, default=None, help="mesh: voxel size in metres (default: median depth / 200)")
     g.add_argument("--trunc", type=float, default=None, help="mesh: TSDF truncation in metres (default: 4 voxels)")
@@ -50,16 +51,19 @@ def export_handoff(args, fmt: str) -> int:
         from splat_core.export.mesh import build_mesh, mesh_format, write_mesh
 
         mesh_format(args.out)
-        mesh = build_mesh(run, voxel=args.voxel, trunc=args.trunc, depth=args.depth, progress=progress)
+        frames = {} if args.frames is None else dict(frames=args.frames)
+        mesh = build_mesh(run, voxel=args.voxel, trunc=args.trunc, depth=args.depth, progress=progress,
+                          input_override=args.input, **frames)
         out = write_mesh(mesh, args.out)
         summary = dict(format="mesh", out=str(out), vertices=len(mesh.vertices), faces=len(mesh.faces),
-                       **{k: mesh.metadata[k] for k in ("voxel", "trunc", "depth")})
+                       **{k: mesh.metadata[k] for k in ("voxel", "trunc", "depth", "frames", "fused")})
     else:
         from splat_core.export import write_colmap, write_nerfstudio
 
         writer = write_colmap if fmt == "colmap" else write_nerfstudio
         kw = {} if args.max_points is None else dict(max_points=args.max_points)
-        summary = dict(format=fmt, **writer(run, args.out, frames=args.frames, input_override=args.input,
+        frames = args.frames or "keyframes"
+        summary = dict(format=fmt, **writer(run, args.out, frames=frames, input_override=args.input,
                                             progress=progress, **kw))
     summary["seconds"] = round(time.perf_counter() - t0, 2)
     print(json.dumps(summary))

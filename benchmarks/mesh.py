@@ -1,12 +1,19 @@
 """Meshes of finished runs (`splatam export --format mesh`), both depth sources; prints JSON.
 
     python benchmarks/mesh.py [RUN_DIR ...] [--synthetic-run DIR] [--synthetic-frames 40]
+                              [--synthetic-seed 0] [--synthetic-noise 0] [--synthetic-holes 0]
+                              [--synthetic-speed 1] [--synthetic-kind room|corridor]
+                              [--frames keyframes 3 2 all]
                               [--timing-run RUN_DIR] [--modes captured rendered]
 
-- Synthetic: a run of the procedural room (SyntheticSource, 320x240, the cpu preset; made in
+- Synthetic: a run of the procedural room (SyntheticSource, 320x240, the cpu preset; or the corridor
+  walk, CorridorSource, with its 5 m depth range; made in
   --synthetic-run when that folder has no run yet), its mesh scored against the scene's exact
   surfaces: accuracy (mesh surface samples to the nearest surface: median / mean / p90 cm) and
-  completion (surface seen by the keyframes, exact depth at the exact poses, within 2 cm of the mesh).
+  completion (surface the capture saw: exact depth of EVERY frame at the exact poses, within the
+  sensor's range, within 2 cm of
+  the mesh; `completion_keyframes`: the keyframes' surface alone). Each --frames choice
+  (keyframes, every Nth frame, all) is meshed, the extra frames re-read from the re-created source.
 - Real runs (RUN_DIR, e.g. of ../shared/data/7scenes_redkitchen_300 and the SUN3D fragments): the
   same two figures against the captured depth of every 5th processed frame back-projected with the
   REFERENCE poses (so pose drift counts against the mesh). Both are put in the run's world frame
@@ -40,12 +47,15 @@ from splat_core.refine.run_data import load_run_data, open_run_capture  # noqa: 
 SYN_SIZE = (320, 240)
 
 
-def synthetic_run(folder: Path, n_frames: int):
+def synthetic_run(folder: Path, n_frames: int, seed: int = 0, noise: float = 0.0, holes: float = 0.0,
+                  speed: float = 1.0, kind: str = "room"):
     from splat_core.config import load_config
     from splat_core.run import Pipeline
-    from splat_core.synthetic import SyntheticSource
+    from splat_core.synthetic import CorridorSource, SyntheticSource
 
-    src = SyntheticSource(n_frames=n_frames, width=SYN_SIZE[0], height=SYN_SIZE[1])
+    kind_source = CorridorSource if kind == "corridor" else SyntheticSource
+    src = kind_source(n_frames=n_frames, width=SYN_SIZE[0], height=SYN_SIZE[1], seed=seed, noise=noise, holes=holes,
+                      speed=speed)
     if not (folder / "map.ply").exists():
         pipe = Pipeline(src, load_config("cpu"), folder)
         while pipe.step() is not None:
@@ -54,32 +64,42 @@ def synthetic_run(folder: Path, n_frames: int):
     return src
 
 
-def mesh_in(run, mode: str):
+def mesh_in(run, mode: str, frames: str = "keyframes", source=None):
     t0 = time.perf_counter()
-    mesh = build_mesh(run, depth=mode)
+    mesh = build_mesh(run, depth=mode, frames=frames, source=source)
     return mesh, time.perf_counter() - t0
 
 
-def score_synthetic(folder: Path, n_frames: int, modes) -> dict:
-    src = synthetic_run(folder, n_frames)
+def score_synthetic(folder: Path, n_frames: int, modes, frames=("keyframes",), seed: int = 0,
+                    noise: float = 0.0, holes: float = 0.0, speed: float = 1.0, kind: str = "room") -> dict:
+    src = synthetic_run(folder, n_frames, seed, noise, holes, speed, kind)
     run = load_run_data(folder)
     first = src.c2w[int(run.records[0]["source_index"])]
-    truth = []
-    for k in run.keyframe_indices:
+    truth = {}
+    for k in range(len(run.records)):
         c2w = src.c2w[int(run.records[k]["source_index"])]
-        truth.append(depth_points(src.render_view(c2w, run.intrinsics)[1], c2w, run.intrinsics, 2))
-    truth = np.concatenate(truth)
-    out = dict(run=str(folder), frames=len(run.records), keyframes=len(run.keyframes),
+        depth = src.render_view(c2w, run.intrinsics)[1]
+        if src.max_depth:                       # the sensor's range: what no frame can see is not missed
+            depth = np.where(depth <= src.max_depth, depth, 0.0)
+        truth[k] = depth_points(depth, c2w, run.intrinsics, 2)
+    seen = np.concatenate(list(truth.values()))
+    kf_seen = np.concatenate([truth[k] for k in run.keyframe_indices])
+    out = dict(run=str(folder), kind=kind, seed=seed, noise=noise, holes=holes, speed=speed, frames=len(run.records),
+               keyframes=len(run.keyframes),
                ate_rmse_cm=_metrics(folder).get("ate_rmse_cm"))
     for mode in modes:
-        mesh, seconds = mesh_in(run, mode)
-        mesh.apply_transform(first)
-        out[mode] = dict(seconds=round(seconds, 2), voxel=mesh.metadata["voxel"], trunc=mesh.metadata["trunc"],
-                         **score_against_scene(mesh, src.scene, truth))
+        for which in frames:
+            mesh, seconds = mesh_in(run, mode, which, src)
+            mesh.apply_transform(first)
+            kf_score = score_against_scene(mesh, src.scene, kf_seen)
+            out[f"{mode}/{which}"] = dict(seconds=round(seconds, 2), fused=mesh.metadata["fused"],
+                                          voxel=mesh.metadata["voxel"], trunc=mesh.metadata["trunc"],
+                                          completion_keyframes=kf_score["completion"],
+                                          **score_against_scene(mesh, src.scene, seen))
     return out
 
 
-def score_real(folder: Path, modes, every: int = 5) -> dict:
+def score_real(folder: Path, modes, every: int = 5, frames=("keyframes",)) -> dict:
     from splat_core.run.frame_feed import prepare_frame
 
     run = load_run_data(folder)
@@ -98,9 +118,11 @@ def score_real(folder: Path, modes, every: int = 5) -> dict:
     out = dict(run=str(folder), capture=run.capture["path"], frames=len(run.records), keyframes=len(run.keyframes),
                ate_rmse_cm=_metrics(folder).get("ate_rmse_cm"), reference_points=len(truth))
     for mode in modes:
-        mesh, seconds = mesh_in(run, mode)
-        out[mode] = dict(seconds=round(seconds, 2), voxel=mesh.metadata["voxel"], trunc=mesh.metadata["trunc"],
-                         **score_against_points(mesh, truth))
+        for which in frames:
+            mesh, seconds = mesh_in(run, mode, which)
+            out[f"{mode}/{which}"] = dict(seconds=round(seconds, 2), fused=mesh.metadata["fused"],
+                                          voxel=mesh.metadata["voxel"], trunc=mesh.metadata["trunc"],
+                                          **score_against_points(mesh, truth))
     return out
 
 
@@ -134,13 +156,21 @@ def main() -> None:
     p.add_argument("runs", nargs="*", metavar="RUN_DIR", help="finished runs of real captures with reference poses")
     p.add_argument("--synthetic-run", default=None, help="folder of the synthetic run (made when empty)")
     p.add_argument("--synthetic-frames", type=int, default=40)
+    p.add_argument("--synthetic-seed", type=int, default=0, help="another room and path (seed of SyntheticSource)")
+    p.add_argument("--synthetic-noise", type=float, default=0.0, help="depth noise std / depth^2 (1/m)")
+    p.add_argument("--synthetic-holes", type=float, default=0.0, help="share of depth pixels invalid, in blobs")
+    p.add_argument("--synthetic-speed", type=float, default=1.0, help="camera motion per frame (1: hand-held)")
+    p.add_argument("--synthetic-kind", default="room", choices=["room", "corridor"], help="the scene and path")
+    p.add_argument("--frames", nargs="+", default=["keyframes"], help="keyframes, all, N (every Nth)")
     p.add_argument("--timing-run", default=None, help="run folder to time the CLI export on")
     p.add_argument("--modes", nargs="+", default=["captured", "rendered"], choices=["captured", "rendered"])
     args = p.parse_args()
     result = dict(benchmark="mesh", machine=machine(), date=time.strftime("%Y-%m-%d"))
     if args.synthetic_run:
-        result["synthetic"] = score_synthetic(Path(args.synthetic_run), args.synthetic_frames, args.modes)
-    result["real"] = [score_real(Path(r), args.modes) for r in args.runs]
+        result["synthetic"] = score_synthetic(Path(args.synthetic_run), args.synthetic_frames, args.modes,
+                                              args.frames, args.synthetic_seed, args.synthetic_noise,
+                                              args.synthetic_holes, args.synthetic_speed, args.synthetic_kind)
+    result["real"] = [score_real(Path(r), args.modes, frames=args.frames) for r in args.runs]
     if args.timing_run:
         result["timing"] = timing(Path(args.timing_run), args.modes)
     print(json.dumps(result, indent=1))

@@ -8,7 +8,9 @@ splats; and the mesh entry of the export panel.
     layer.export(folder)                # the export panel's "mesh" entry: the mesh as .ply
 
 Ready when SLAM has finished into a run folder (`--out`) or a run folder is browsed (the mesh
-fuses the run's keyframes: splat_core.export.build_mesh). The splat chunks hang under `/map`;
+fuses the run's frames as `splatam export` does: splat_core.export.build_mesh). The page gets a copy
+of at most VIEWER_MAX_FACES faces (vertex clustering: splat_core.export.decimate); the export entry
+writes the full mesh. The splat chunks hang under `/map`;
 this layer owns that frame, so hiding it hides every chunk whatever the map layer sends later.
 """
 
@@ -27,6 +29,7 @@ log = logging.getLogger(__name__)
 READY_STATES = ("finished", "browse")
 MESH_NODE = "/mesh"
 MAP_ROOT = "/map"
+VIEWER_MAX_FACES = 200_000       # the synthetic 320x240 room's full mesh has 427k faces
 
 
 class MeshLayer:
@@ -43,7 +46,7 @@ class MeshLayer:
         with gui.add_folder("Mesh", order=order, expand_by_default=False):
             self.button = gui.add_button("Build mesh", icon=viser.Icon.CUBE, disabled=True)
             self.show = gui.add_checkbox("Show mesh instead of splats", initial_value=True, disabled=True)
-            self.info = gui.add_markdown("A mesh of the finished run (TSDF of the keyframes' depth).")
+            self.info = gui.add_markdown("A mesh of the finished run (TSDF of its frames' depth).")
         self.button.on_click(lambda _event: self.start())
         self.show.on_update(lambda _event: self._apply_visibility())
 
@@ -69,11 +72,16 @@ class MeshLayer:
 
     def _build_and_show(self, run_dir: Path) -> None:
         try:
+            from splat_core.export.decimate import decimate
+
             mesh = self.build(run_dir)
-            self.handle = self.server.scene.add_mesh_trimesh(MESH_NODE, mesh, visible=bool(self.show.value))
+            shown = decimate(mesh, VIEWER_MAX_FACES)
+            self.handle = self.server.scene.add_mesh_trimesh(MESH_NODE, shown, visible=bool(self.show.value))
             self.show.disabled = False
             self._apply_visibility()
-            self.info.content = (f"{len(mesh.faces):,} faces, voxel {mesh.metadata['voxel'] * 100:.1f} cm "
+            sent = "" if shown is mesh else f" ({len(shown.faces):,} shown)"
+            self.info.content = (f"{len(mesh.faces):,} faces{sent}, voxel {mesh.metadata['voxel'] * 100:.1f} cm, "
+                                 f"{mesh.metadata['fused']} frames fused "
                                  f"(`splatam export {run_dir} --format mesh --out FILE` writes the same)")
         except InputError as e:
             self.info.content = f"⚠ {e}"
@@ -92,7 +100,7 @@ class MeshLayer:
             return self.mesh
         self.info.content = "Loading the run…"
         run = load_run_data(run_dir)
-        self.mesh = build_mesh(run, progress=self._progress)
+        self.mesh = build_mesh(run, progress=self._progress, warn=log.warning)
         self._mesh_of = run_dir
         return self.mesh
 

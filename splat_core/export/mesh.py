@@ -1,6 +1,6 @@
-"""A mesh of a run: TSDF fusion of depth at the keyframe poses, marching cubes, clean-up, trimesh.
+"""A mesh of a run: TSDF fusion of depth at the run's poses, marching cubes, clean-up, trimesh.
 
-    build_mesh(run, voxel=None, trunc=None, depth="captured", progress=None) -> trimesh.Trimesh
+    build_mesh(run, voxel=None, trunc=None, depth="captured", frames=DEFAULT_FRAMES, ...) -> trimesh.Trimesh
     fuse_views(views, intrinsics, voxel, trunc, progress=None) -> BlockVolume
     extract_mesh(volume, min_component_faces=..., progress=None) -> trimesh.Trimesh
     write_mesh(mesh, path)  -> .ply | .obj | .glb, atomically
@@ -9,6 +9,12 @@
 resolution); "rendered" fuses the map's rendered depth (normalised by its silhouette, kept where
 the silhouette is >= RENDER_MIN_ALPHA) and colour at the same poses. docs/handoffs.md says which is
 better where, measured by benchmarks/mesh.py.
+
+`frames`: "keyframes" fuses the keyframes alone; "all" or "N" (every Nth processed frame) fuses the
+keyframes plus those frames (lost frames left out), their captured depth re-read from the run's
+capture at the working resolution and posed by the run's estimated trajectory. When the capture
+cannot be read, one warning and the keyframes alone. docs/handoffs.md has the measurement behind
+DEFAULT_FRAMES.
 
 Marching cubes (scikit-image) runs chunk by chunk (CHUNK^3 blocks plus one voxel of the next
 chunk), so no dense grid of the whole bounding box is ever made; a cube is meshed only when all
@@ -32,6 +38,7 @@ MAX_STEP_VOXELS = 3.0 * np.sqrt(3.0)   # largest TSDF change across a meshed cub
 DEPTH_MODES = ("captured", "rendered")
 MIN_VOXEL = 0.001              # metres; finer would allocate blocks by the million
 MESH_SUFFIXES = {".ply": "ply", ".obj": "obj", ".glb": "glb"}
+DEFAULT_FRAMES = "3"           # keyframes + every 3rd frame: docs/handoffs.md, "Which frames, measured"
 
 
 def default_voxel(depths) -> float:
@@ -47,25 +54,74 @@ def default_trunc(voxel: float) -> float:
     return 4.0 * voxel
 
 
-def keyframe_views(run, depth: str = "captured"):
-    """(colour, depth, w2c) per keyframe at the working resolution, captured or rendered."""
+def fusion_indices(run, frames: str = "keyframes") -> list[int]:
+    """Processed-frame numbers fused for --frames: the keyframes plus the chosen frames, lost ones left out."""
+    from .frames import choose_frames
+
+    keep = set(run.keyframe_indices)
+    if str(frames) != "keyframes":
+        keep.update(k for k in choose_frames(run, frames) if not run.records[k].get("lost"))
+    return sorted(keep)
+
+
+def mesh_source(run, input_override=None, warn=None):
+    """The capture to re-read frames' depth from; None, after one warning, when the run records none
+    or it is gone (a capture named by `input_override` that cannot be opened is an error)."""
+    from ..refine.run_data import open_run_capture
+
+    reason = f"{run.run_dir}: the run does not record its capture"
+    try:
+        source = open_run_capture(run, input_override)
+    except InputError as e:
+        if input_override is not None:
+            raise
+        source, reason = None, str(e).removesuffix("; pass --input CAPTURE")
+    if source is None:
+        (warn or _warn)(f"{reason}; fusing the keyframes only (pass --input CAPTURE to fuse more frames)")
+    return source
+
+
+def _warn(message: str) -> None:
+    import sys
+
+    print(f"warning: {message}", file=sys.stderr, flush=True)
+
+
+def frame_views(run, indices, depth: str = "captured", source=None):
+    """(colour, depth, w2c) per processed frame `indices` at the working resolution: keyframes from
+    the run (their frozen poses), other frames re-read from `source` (captured) or rendered."""
     if depth not in DEPTH_MODES:
         raise InputError(f"--depth {depth}: expected captured or rendered")
-    for kf in run.keyframes:
-        if depth == "captured":
-            yield np.asarray(kf.color, np.float32), np.asarray(kf.depth, np.float32), np.asarray(kf.w2c)
-            continue
-        import torch
-        from ..render import render
+    keyframes = {kf.frame_index: kf for kf in run.keyframes}
+    for k in indices:
+        kf = keyframes.get(k)
+        w2c = np.asarray(kf.w2c if kf is not None else run.w2cs[k], np.float64)
+        if depth == "rendered":
+            yield _rendered(run, w2c)
+        elif kf is not None:
+            yield np.asarray(kf.color, np.float32), np.asarray(kf.depth, np.float32), w2c
+        elif source is not None:
+            from ..run.frame_feed import prepare_frame
 
-        with torch.no_grad():
-            r = render(run.map, run.intrinsics, np.asarray(kf.w2c))
-        alpha = r.alpha.cpu().numpy().astype(np.float32)
-        ok = alpha >= RENDER_MIN_ALPHA
-        safe = np.where(ok, alpha, 1.0)
-        d = np.where(ok, r.depth.cpu().numpy() / safe, 0.0).astype(np.float32)
-        c = np.clip(r.color.cpu().numpy() / safe[..., None], 0, 1).astype(np.float32)
-        yield c, d, np.asarray(kf.w2c)
+            try:
+                f = prepare_frame(source, int(run.records[k]["source_index"]), run.intrinsics, run.config.max_depth)
+            except InputError:      # a frame without usable depth adds nothing
+                continue
+            yield np.asarray(f.color, np.float32), np.asarray(f.depth, np.float32), w2c
+
+
+def _rendered(run, w2c):
+    import torch
+    from ..render import render
+
+    with torch.no_grad():
+        r = render(run.map, run.intrinsics, w2c)
+    alpha = r.alpha.cpu().numpy().astype(np.float32)
+    ok = alpha >= RENDER_MIN_ALPHA
+    safe = np.where(ok, alpha, 1.0)
+    d = np.where(ok, r.depth.cpu().numpy() / safe, 0.0).astype(np.float32)
+    c = np.clip(r.color.cpu().numpy() / safe[..., None], 0, 1).astype(np.float32)
+    return c, d, w2c
 
 
 def fuse_views(views, intr: Intrinsics, voxel: float, trunc: float, progress=None, total=None) -> BlockVolume:
@@ -176,17 +232,26 @@ def remove_small_components(mesh, min_faces: int):
 
 
 def build_mesh(run, voxel: float | None = None, trunc: float | None = None, depth: str = "captured",
-               min_component_faces: int = MIN_COMPONENT_FACES, progress=None):
-    """The run's mesh (world frame of the run, metres, vertex colours) as a trimesh.Trimesh."""
+               min_component_faces: int = MIN_COMPONENT_FACES, progress=None, frames: str = DEFAULT_FRAMES,
+               source=None, input_override=None, warn=None):
+    """The run's mesh (world frame of the run, metres, vertex colours) as a trimesh.Trimesh.
+    `source`: the capture to re-read frames from (default: the run's, or `input_override`)."""
     if voxel is None:
         voxel = default_voxel(kf.depth for kf in run.keyframes)
     if trunc is None:
         trunc = default_trunc(voxel)
     if not (voxel >= MIN_VOXEL and trunc >= voxel):
         raise InputError(f"--voxel {voxel} / --trunc {trunc}: need voxel >= {MIN_VOXEL} m and trunc >= voxel")
-    volume = fuse_views(keyframe_views(run, depth), run.intrinsics, voxel, trunc, progress, len(run.keyframes))
+    indices = fusion_indices(run, frames)
+    if depth == "captured" and len(indices) > len(run.keyframes) and source is None:
+        source = mesh_source(run, input_override, warn)
+        if source is None:
+            indices, frames = run.keyframe_indices, "keyframes"
+    views = frame_views(run, indices, depth, source)
+    volume = fuse_views(views, run.intrinsics, voxel, trunc, progress, len(indices))
     mesh = extract_mesh(volume, min_component_faces, progress)
-    mesh.metadata.update(voxel=voxel, trunc=trunc, depth=depth, volume_bytes=volume.nbytes, blocks=volume.n)
+    mesh.metadata.update(voxel=voxel, trunc=trunc, depth=depth, volume_bytes=volume.nbytes, blocks=volume.n,
+                         frames=str(frames), fused=len(indices))
     return mesh
 
 
