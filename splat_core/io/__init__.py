@@ -4,8 +4,9 @@ The names below are imported on first use, so the torch-free modules (atomic.py,
 source.py) import without the readers and the engine behind them.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from ..lazy_names import lazy_names
 
 if TYPE_CHECKING:       # what the names are (for readers and type checkers); imported on first use below
     from .detect import FORMATS, detect_format, open_capture
@@ -16,11 +17,4 @@ _HOMES = {"FrameSource": "source", "FORMATS": "detect", "detect_format": "detect
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f".{_HOMES[name]}", __name__), name)
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_HOMES))
+__getattr__, __dir__ = lazy_names(__name__, _HOMES)

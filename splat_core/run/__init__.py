@@ -11,8 +11,9 @@
 The names below are imported on first use, so `splat_core.run.run_folder` imports without torch.
 """
 
-from importlib import import_module
 from typing import TYPE_CHECKING
+
+from ..lazy_names import lazy_names
 
 if TYPE_CHECKING:       # what the names are (for readers and type checkers); imported on first use below
     from .engines import ENGINES
@@ -26,11 +27,4 @@ _HOMES = {"ENGINES": "engines", "Pipeline": "pipeline", "RunFolder": "run_folder
 __all__ = sorted(_HOMES)
 
 
-def __getattr__(name: str):
-    if name not in _HOMES:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(import_module(f".{_HOMES[name]}", __name__), name)
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_HOMES))
+__getattr__, __dir__ = lazy_names(__name__, _HOMES)
