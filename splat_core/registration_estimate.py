@@ -176,12 +176,14 @@ def register_from_estimate(source, n_frames: int = 10) -> str | None:
     Returns the note to show, or None when the estimate finds nothing to correct (or the source
     cannot register: a stream). Deterministic (fixed frames, a grid search): a resumed run finds
     the same."""
-    if getattr(source, "live", False) or not hasattr(source, "use_two_cameras") or len(source) < 1:
+    capture = getattr(source, "inner", source)          # --realtime playback: the capture it plays
+    if getattr(capture, "live", False) or not hasattr(capture, "use_two_cameras") or len(capture) < 1:
         return None
-    est = estimate_registration(source, n_frames)
+    est = estimate_registration(capture, n_frames)
     if est.registered:
         return None
-    source.use_two_cameras(est.cameras)
+    capture.use_two_cameras(est.cameras)
+    source.registered = True
     t = est.translation
     return (f"colour and depth are not registered (camera file) and no colour camera is given: estimated from the "
             f"capture (colour focal {est.cameras.color.fx:.1f}, offset {100 * t[0]:.2f}, {100 * t[1]:.2f} cm; edge "

@@ -160,6 +160,10 @@ def test_a_raw_capture_is_registered_from_its_own_estimate(raw):
     registered = frame.color[frame.depth > 0]
     exact = raw.source[raw.frames[0]].color[frame.depth > 0]
     assert np.median(np.abs(registered - exact)) < 0.02        # colour from the right pixel again
+    from splat_core.io.playback import RealtimePlayback
+
+    played = Pipeline(RealtimePlayback(open_capture(raw.path), fps=30), load_config("cpu"), engine="live")
+    assert played.source.registered and played.source.inner.two_cameras is not None    # --realtime too
     off = Pipeline(open_capture(raw.path), load_config("cpu", {"estimate_registration": False}), max_frames=2)
     assert not off.source.registered and off.config.tracking.color_weight == 0
     assert "tracking uses depth alone" in off.notes[0]
