@@ -20,6 +20,12 @@ from ..snapshot import MapSnapshot
 BEHIND_ABOVE = np.array([0.0, -0.5, -1.0])   # in the first camera's axes: back (-z) and up (-y)
 REFRAME_FRACTION = 0.05                       # reframe when the view moves this much of the map's size
 SENT_KEPT = 6                                 # poses sent to a page that still count as ours
+DIRECTION_COS = np.cos(np.radians(0.5))       # a page looking this close to our direction looks where we put it
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-12 else v
 
 
 def framing_view(means: np.ndarray, first_c2w: np.ndarray, fov_y: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -70,9 +76,11 @@ class MapFraming:
             if sent is None or client_id in self.moved:
                 return
             tol = 1e-3 * max(1.0, float(np.linalg.norm(sent[-1][0] - sent[-1][1])))
-            # the position only: a page reports look-at points of its own (orbit target resets) while
-            # its camera stays put; every way of moving the camera (orbit, pan, zoom, fly to) moves it
-            ours = any(np.allclose(position, p, atol=tol) for p, _ in sent)
+            # the position and the direction, not the look-at point: a page reports look-at points of
+            # its own along the same ray (orbit target resets) while its camera stays put
+            direction = _unit(np.asarray(camera.look_at, np.float64) - position)
+            ours = any(np.allclose(position, p, atol=tol) and float(direction @ _unit(q - p)) > DIRECTION_COS
+                       for p, q in sent)
             if ours:
                 self._acked.add(client_id)
             elif client_id in self._acked:     # before that, a page reports its own start-up pose
@@ -102,7 +110,9 @@ class MapFraming:
                 sent.append((position.copy(), look_at.copy()))
                 del sent[:-SENT_KEPT]
             with client.atomic():
+                # position before look-at: viser's position setter carries the old look-at along
+                # (it keeps the orientation), so a look-at set first would be moved off the map
                 client.camera.up_direction = (0.0, -1.0, 0.0)
-                client.camera.look_at = tuple(look_at)
                 client.camera.position = tuple(position)
+                client.camera.look_at = tuple(look_at)
         return True

@@ -1,0 +1,87 @@
+"""Who owns a page's camera (app/viewer/framing.py), without a browser: a page's own start-up pose
+does not take the camera from the framing, a look-at point moved along the same ray (orbit target
+reset) keeps it ours, and any other pose reported after the page showed ours is the visitor's."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from app.viewer.framing import MapFraming, framing_view
+
+
+class FakeCamera:
+    def __init__(self):
+        self.position, self.look_at, self.up_direction = np.zeros(3), np.array([0.0, 0.0, 1.0]), None
+        self.callbacks = []
+
+    def on_update(self, cb):
+        self.callbacks.append(cb)
+
+    def report(self, position, look_at):
+        """The page reports a pose (what viser's camera message does)."""
+        self.position, self.look_at = np.asarray(position, float), np.asarray(look_at, float)
+        for cb in self.callbacks:
+            cb(self)
+
+
+class FakeClient:
+    def __init__(self, client_id):
+        self.client_id, self.camera = client_id, FakeCamera()
+
+    def atomic(self):
+        return Atomic()
+
+
+class Atomic:
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def make(clients):
+    initial = SimpleNamespace(position=(3.0, 3.0, 3.0), look_at=(0.0, 0.0, 0.0), fov=np.radians(75))
+    server = SimpleNamespace(initial_camera=initial, get_clients=lambda: {c.client_id: c for c in clients})
+    framing = MapFraming(server)
+    for c in clients:
+        framing.attach(c)
+    return framing
+
+
+def snapshot():
+    rng = np.random.default_rng(1)
+    means = rng.uniform([-1, -1, 2], [1, 1, 4], (500, 3))
+    return SimpleNamespace(gaussians={"means": means}, estimated_c2w=np.eye(4)[None])
+
+
+def test_framing_view_looks_at_the_map_from_behind_the_first_camera():
+    means = snapshot().gaussians["means"]
+    position, look_at, radius = framing_view(means, np.eye(4), np.radians(60))
+    assert position[2] < means[:, 2].min() and position[1] < 0       # behind (-z) and above (-y)
+    assert np.allclose(look_at, 0.5 * (np.percentile(means, 5, 0) + np.percentile(means, 95, 0)))
+    assert np.linalg.norm(position - look_at) >= radius
+
+
+def test_a_page_follows_the_framing_until_its_visitor_moves_the_camera():
+    page = FakeClient(1)
+    framing = make([page])
+    assert framing.update(snapshot())
+    position, look_at, _ = framing.view
+    cam = page.camera
+    assert np.allclose(cam.position, position) and np.allclose(cam.look_at, look_at)
+    cam.report((3.0, 3.0, 3.0), (0.5, 0.0, 0.0))          # its own start-up pose, before it showed ours
+    assert framing.follows(1)
+    cam.report(position, look_at)                          # it shows ours
+    cam.report(position, position + 0.3 * (look_at - position))   # orbit target reset on the same ray
+    assert framing.follows(1)
+    turned = look_at + np.array([0.5, 0.0, 0.0])           # same place, another direction: the visitor's
+    cam.report(position, turned)
+    assert not framing.follows(1)
+    # a reframing no longer moves that page
+    moved = snapshot()
+    moved.gaussians["means"] = moved.gaussians["means"] + np.array([2.0, 0.0, 0.0])
+    assert framing.update(moved)
+    assert np.allclose(cam.look_at, turned)
