@@ -1,6 +1,10 @@
 """A first run of `splatam-viewer` from an empty kernel cache (issue 45): seconds from the start to
 the printed URL answering, to the kernels compiled, and to the first map on the page (Chromium).
-Prints JSON.  python benchmarks/first_run.py [--max-frames 3]"""
+Prints JSON.  python benchmarks/first_run.py [--max-frames 3] [--before OLD_CHECKOUT]
+
+--before DIR: then the same from `make demo` as an older checkout ran it (its warm-up command,
+which compiled every kernel before the viewer started, then its viewer), for the side-by-side
+figure "the first map reaches the page no later than before"."""
 
 from __future__ import annotations
 
@@ -17,26 +21,31 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).parent))
-from common import CHROMIUM, CHROMIUM_ARGS  # noqa: E402
+from common import CHROMIUM, CHROMIUM_ARGS, machine  # noqa: E402
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--max-frames", type=int, default=3)
-    args = ap.parse_args()
+VIEWER = "import sys; from app.cli import viewer_main; sys.exit(viewer_main())"
+
+
+def first_run(root: Path, max_frames: int, warmup_first: bool) -> dict:
+    """Seconds from the start of `make demo`'s command in `root` (the viewer; `warmup_first`: the
+    warm-up command, then the viewer, as `make demo` ran before the page served the compile) to the
+    URL answering, the kernels compiled and the first map on the page, from an empty kernel cache."""
     tmp = Path(tempfile.mkdtemp(prefix="first-run-"))
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp / "numba-cache"), PYTHONUNBUFFERED="1",
-               PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+               PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    viewer = [sys.executable, "-c", VIEWER, "--port", "0", "--out", str(tmp / "run"), "--max-frames", str(max_frames)]
+    cmd = viewer if not warmup_first else ["bash", "-c", f'"{sys.executable}" -m app.warmup && exec "$@"', "demo", *viewer]
     lines: list[tuple[float, str]] = []
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-c", "import sys; from app.cli import viewer_main; sys.exit(viewer_main())",
-                             "--port", "0", "--out", str(tmp / "run"), "--max-frames", str(args.max_frames)],
-                            cwd=tmp, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    proc = subprocess.Popen(cmd, cwd=tmp, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     threading.Thread(target=lambda: [lines.append((time.monotonic() - t0, ln)) for ln in proc.stdout],
                      daemon=True).start()
-    out = {}
+    out = dict(tree=str(root), command="warm-up, then viewer" if warmup_first else "viewer")
     try:
         while not any(ln.startswith("URL ") for _, ln in lines):
+            if proc.poll() is not None:
+                raise RuntimeError("the viewer ended before printing its URL:\n" + "".join(ln for _, ln in lines))
             time.sleep(0.05)
         url = next(ln.split()[1] for _, ln in lines if ln.startswith("URL "))
         while True:
@@ -58,6 +67,18 @@ def main() -> int:
     finally:
         proc.terminate()
         proc.wait(120)
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--max-frames", type=int, default=3)
+    ap.add_argument("--before", type=Path, default=None,
+                    help="also time `make demo` of an older checkout (warm-up, then viewer), right after")
+    args = ap.parse_args()
+    out = dict(machine=machine(), runs=[first_run(ROOT, args.max_frames, warmup_first=False)])
+    if args.before is not None:
+        out["runs"].append(first_run(args.before.resolve(), args.max_frames, warmup_first=True))
     print(json.dumps(out))
     return 0
 

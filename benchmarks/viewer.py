@@ -103,14 +103,14 @@ def server_side(n: int) -> dict:
 
 
 @contextlib.contextmanager
-def chromium_page(server, init_script: str | None = None):
+def chromium_page(server, init_script: str | None = None, viewport=(800, 600)):
     """Headless Chromium (software WebGL, the browser tests' flags) on the server's page, connected."""
     from playwright.sync_api import sync_playwright
 
     pw = sync_playwright().start()
     browser = pw.chromium.launch(executable_path=CHROMIUM, headless=True, args=CHROMIUM_ARGS)
     try:
-        page = browser.new_page(viewport={"width": 800, "height": 600})
+        page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
         if init_script:
             page.add_init_script(init_script)
         page.goto(f"http://127.0.0.1:{server.get_port()}/")

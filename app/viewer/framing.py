@@ -2,7 +2,8 @@
 page until its visitor moves the camera (then the page is theirs).
 
 The view looks at the middle of the box holding 90% of the map's Gaussians, from behind and
-above the first camera, far enough for the whole box to fit the page's vertical field of view.
+above the first camera, as close as keeps 90 % of them in a square of the page's vertical field
+of view (a sphere around the box fitted to the view left most of the canvas empty).
 New pages start there (`server.initial_camera`); pages whose camera is still where this class
 last put it follow each new framing. A camera anywhere else (the visitor dragged it, clicked a
 keyframe, typed a pose) is the visitor's: it is never moved again.
@@ -20,6 +21,8 @@ from ..snapshot import MapSnapshot
 BEHIND_ABOVE = np.array([0.0, -0.5, -1.0])   # in the first camera's axes: back (-z) and up (-y)
 REFRAME_FRACTION = 0.05                       # reframe when the view moves this much of the map's size
 SENT_KEPT = 6                                 # poses sent to a page that still count as ours
+IN_VIEW = 0.9                                 # the share of the map's points the default view keeps in view
+MAX_POINTS = 20000                            # points sampled for the fit
 DIRECTION_COS = np.cos(np.radians(0.5))       # a page looking this close to our direction looks where we put it
 
 
@@ -30,17 +33,29 @@ def _unit(v: np.ndarray) -> np.ndarray:
 
 def framing_view(means: np.ndarray, first_c2w: np.ndarray, fov_y: float) -> tuple[np.ndarray, np.ndarray, float]:
     """(camera position, look-at point, radius) framing the map `means` (N,3), seen from behind
-    and above the camera `first_c2w`."""
-    lo, hi = np.percentile(np.asarray(means, np.float64), [5, 95], axis=0)
+    and above the camera `first_c2w`: as close as keeps IN_VIEW of the points inside the vertical
+    field of view and a square around it (the page's panel covers the right of a wide canvas)."""
+    pts = np.asarray(means, np.float64)
+    if len(pts) > MAX_POINTS:
+        pts = pts[np.random.default_rng(0).choice(len(pts), MAX_POINTS, replace=False)]
+    lo, hi = np.percentile(pts, [5, 95], axis=0)
     centre = 0.5 * (lo + hi)
     radius = max(0.5 * float(np.linalg.norm(hi - lo)), 0.05)
     first_c2w = np.asarray(first_c2w, np.float64)
     eye = first_c2w[:3, 3] + first_c2w[:3, :3] @ BEHIND_ABOVE * radius
-    direction = eye - centre
-    norm = float(np.linalg.norm(direction))
-    direction = direction / norm if norm > 1e-9 else first_c2w[:3, :3] @ (BEHIND_ABOVE / np.linalg.norm(BEHIND_ABOVE))
-    distance = radius / np.sin(0.5 * fov_y)      # the box's bounding sphere fits the view
-    return centre + direction * distance, centre, radius
+    back = _unit(eye - centre)
+    if float(np.linalg.norm(eye - centre)) <= 1e-9:
+        back = first_c2w[:3, :3] @ _unit(BEHIND_ABOVE)
+    # camera axes looking along -back with up -y; each point needs the camera at least this far back
+    right = _unit(np.cross(np.array([0.0, -1.0, 0.0]), -back))
+    if float(np.linalg.norm(right)) < 0.5:           # looking straight up or down
+        right = first_c2w[:3, 0]
+    down = np.cross(-back, right)
+    rel = pts - centre
+    lateral = np.maximum(np.abs(rel @ right), np.abs(rel @ down))
+    needed = lateral / np.tan(0.5 * fov_y) + rel @ back
+    distance = max(float(np.percentile(needed, 100 * IN_VIEW)), 0.25 * radius)
+    return centre + back * distance, centre, radius
 
 
 class MapFraming:

@@ -57,12 +57,26 @@ def snapshot():
     return SimpleNamespace(gaussians={"means": means}, estimated_c2w=np.eye(4)[None])
 
 
-def test_framing_view_looks_at_the_map_from_behind_the_first_camera():
+def in_view(points, position, look_at, fov_y):
+    """Which points a camera at `position` looking at `look_at` (up -y) sees within a square of fov_y."""
+    z = (np.asarray(look_at) - position) / np.linalg.norm(np.asarray(look_at) - position)
+    x = np.cross([0.0, -1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    p = (points - position) @ np.stack([x, y, z]).T
+    t = np.tan(0.5 * fov_y)
+    return (p[:, 2] > 0) & (np.abs(p[:, 0]) <= t * p[:, 2] + 1e-9) & (np.abs(p[:, 1]) <= t * p[:, 2] + 1e-9)
+
+
+def test_framing_view_looks_at_the_map_from_behind_the_first_camera_and_fills_the_view():
     means = snapshot().gaussians["means"]
-    position, look_at, radius = framing_view(means, np.eye(4), np.radians(60))
+    fov = np.radians(60)
+    position, look_at, radius = framing_view(means, np.eye(4), fov)
     assert position[2] < means[:, 2].min() and position[1] < 0       # behind (-z) and above (-y)
     assert np.allclose(look_at, 0.5 * (np.percentile(means, 5, 0) + np.percentile(means, 95, 0)))
-    assert np.linalg.norm(position - look_at) >= radius
+    assert abs(in_view(means, position, look_at, fov).mean() - 0.9) < 0.02     # 90 % in view: no more
+    closer = look_at + 0.9 * (position - look_at)
+    assert in_view(means, closer, look_at, fov).mean() < 0.85                  # a step closer loses some
 
 
 def test_a_page_follows_the_framing_until_its_visitor_moves_the_camera():
