@@ -1,5 +1,5 @@
 """Hand-offs of a two-camera capture describe the colour camera (splat_core/export/color_camera.py):
-on the synthetic two-camera capture (tests/helpers/two_cameras.py, colour rendered exactly from its
+on the synthetic two-camera capture (splat_core/synthetic/two_cameras.py, colour rendered exactly from its
 own camera), the COLMAP model read back by pycolmap and nerfstudio's transforms.json carry the
 colour camera's intrinsics, poses, images and depth; the seed points stay in the run's world."""
 
