@@ -14,11 +14,12 @@ depth-edge points sent into each frame's colour image.
 
 Captures registered by their writer (a camera file that says `depth_registered_to_rgb: true`, the
 TUM benchmark, ScanNet, ScanNet++, phone apps, Replica: `FrameSource.registered_by`) are not
-estimated: `registered_by_writer` says why. On such a capture the search finds the motion between
-the colour and depth exposures, not a calibration: on TUM fr1_xyz (Kinect v1, colour and depth
-captured 12-15 ms apart by their stamps) it moves colour by ~15 px, and moving the depth points by
-the reference poses' motion over ~30 ms instead lines them up as well (docs/benchmarks.md, "Two
-cameras"); a fixed offset cannot describe motion that changes from frame to frame.
+estimated: `registered_by_writer` says why. On a moving capture the search can find the motion
+between the colour and depth exposures instead of a calibration: on TUM fr1_xyz (Kinect v1, colour
+and depth stamped 12-15 ms apart) it moves colour by ~15 px, and moving the depth points by the
+reference poses' motion over 30-50 ms lines them up as well, after which the search finds the
+identity (docs/benchmarks.md, "Two cameras"); a fixed offset cannot describe motion that changes
+from frame to frame.
 """
 
 from __future__ import annotations
