@@ -207,3 +207,18 @@ def register_frame(color: np.ndarray, depth: np.ndarray, intr: Intrinsics, cams:
                     borderMode=cv2.BORDER_REPLICATE)
     new_depth = np.where(seen, depth, np.float32(0)).astype(np.float32)
     return np.clip(out, 0.0, 1.0), new_depth
+
+
+def depth_in_color_camera(depth: np.ndarray, intr: Intrinsics, cams: TwoCameras, color_intr: Intrinsics) -> np.ndarray:
+    """The depth camera's depth seen from the colour camera (hand-offs that describe the colour
+    camera: docs/handoffs.md): each valid depth pixel's point goes to the nearest colour pixel,
+    and the nearest point there is kept (a z-buffer); the value is the point's z in the colour
+    camera. Colour pixels no point lands on are 0 (no reading): outside the depth camera's view,
+    hidden from it, or a gap between landing points where the colour camera's pixels are smaller."""
+    u, v, z = project_depth(depth, intr, cams, color_intr)
+    ui, vi = np.rint(u), np.rint(v)
+    ok = (depth > 0) & (z > 0) & (ui >= 0) & (vi >= 0) & (ui <= color_intr.width - 1) & (vi <= color_intr.height - 1)
+    flat = np.full(color_intr.width * color_intr.height, np.inf, dtype=np.float32)
+    np.minimum.at(flat, (vi[ok].astype(np.int64) * color_intr.width + ui[ok].astype(np.int64)), z[ok])
+    flat[~np.isfinite(flat)] = 0
+    return flat.reshape(color_intr.height, color_intr.width)

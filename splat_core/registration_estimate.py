@@ -11,6 +11,15 @@ Estimation: the colour camera is modelled as the depth camera with its focal len
 (principal point kept, scaled to the colour image's size) and offset by t = (tx, ty, 0) with no
 rotation; r, tx, ty are searched on a coarse-to-fine grid for the highest figure over ~10 frames'
 depth-edge points sent into each frame's colour image.
+
+Captures registered by their writer (a camera file that says `depth_registered_to_rgb: true`, the
+TUM benchmark, ScanNet, ScanNet++, phone apps, Replica: `FrameSource.registered_by`) are not
+estimated: `registered_by_writer` says why. On a moving capture the search can find the motion
+between the colour and depth exposures instead of a calibration: on TUM fr1_xyz (Kinect v1, colour
+and depth stamped 12-15 ms apart) it moves colour by ~15 px, and moving the depth points by the
+reference poses' motion over 30-50 ms lines them up as well, after which the search finds the
+identity (docs/benchmarks.md, "Two cameras"); a fixed offset cannot describe motion that changes
+from frame to frame.
 """
 
 from __future__ import annotations
@@ -105,7 +114,7 @@ def sample_frames(n_total: int, n: int) -> list[int]:
     return sorted({int(round(k)) for k in np.linspace(0, n_total - 1, min(n, n_total))})
 
 
-def _gather(pairs, depth_intr: Intrinsics, seed: int = 0) -> _Frames:
+def gather_edges(pairs, depth_intr: Intrinsics, seed: int = 0) -> _Frames:
     """pairs: (colour as stored, depth on the grid of depth_intr)."""
     rng = np.random.default_rng(seed)
     pts, fr, grads = [], [], []
@@ -124,13 +133,24 @@ def _gather(pairs, depth_intr: Intrinsics, seed: int = 0) -> _Frames:
 def edge_agreement(source, n_frames: int = 10) -> float | None:
     """The figure over `n_frames` frames as the source yields them (registered, if it registers)."""
     frames = [source[i] for i in sample_frames(len(source), n_frames)]
-    data = _gather([(f.color, f.depth) for f in frames], frames[0].intrinsics)
+    data = gather_edges([(f.color, f.depth) for f in frames], frames[0].intrinsics)
     return data.score(1.0, 0.0, 0.0) if len(data.points) else None
 
 
 def _grid(centre: float, half: float, step: float) -> np.ndarray:
     n = int(round(half / step))
     return centre + step * np.arange(-n, n + 1)
+
+
+def search(data: _Frames) -> tuple[float, float, float]:
+    """(focal ratio, tx, ty) with the highest edge agreement, coarse to fine (STAGES)."""
+    best = (1.0, 0.0, 0.0)
+    for (rh, rs), (xh, xs), (yh, ys) in STAGES:
+        cands = [(r, x, y) for r in _grid(best[0], rh, rs) for x in _grid(best[1], xh, xs)
+                 for y in _grid(best[2], yh, ys)]
+        scores = [data.score(*c) for c in cands]
+        best = cands[int(np.argmax(scores))]
+    return tuple(float(v) for v in best)
 
 
 @dataclass
@@ -155,19 +175,22 @@ def estimate_registration(source, n_frames: int = 10) -> Estimate:
     ids = sample_frames(len(source), n_frames)
     pairs = [source.raw_pair(i) for i in ids]
     depth_intr = source.intrinsics.scaled(pairs[0][1].shape[1], pairs[0][1].shape[0])
-    data = _gather(pairs, depth_intr)
-    best = (1.0, 0.0, 0.0)
-    for (rh, rs), (xh, xs), (yh, ys) in STAGES:
-        cands = [(r, x, y) for r in _grid(best[0], rh, rs) for x in _grid(best[1], xh, xs)
-                 for y in _grid(best[2], yh, ys)]
-        scores = [data.score(*c) for c in cands]
-        best = cands[int(np.argmax(scores))]
-    r, tx, ty = (float(v) for v in best)
+    data = gather_edges(pairs, depth_intr)
+    r, tx, ty = search(data)
     c = data.color
     cams = TwoCameras(Intrinsics(r * c.fx, r * c.fy, c.cx, c.cy, c.width, c.height), None, np.array([tx, ty, 0.0]))
     corner = np.hypot(max(c.cx, c.width - 1 - c.cx), max(c.cy, c.height - 1 - c.cy))
     shift = abs(r - 1) * corner + r * c.fx * np.hypot(tx, ty) / float(np.median(data.points[:, 2]))
     return Estimate(r, (tx, ty, 0.0), data.score(1.0, 0.0, 0.0), data.score(r, tx, ty), cams, ids, float(shift))
+
+
+def registered_by_writer(source) -> str | None:
+    """Why a capture is known to be registered without estimating it (its writer registered colour
+    and depth, or its camera file says so), or None (estimate to find out)."""
+    capture = getattr(source, "inner", source)          # --realtime playback: the capture it plays
+    if getattr(capture, "two_cameras", None) is not None or not capture.registered:
+        return None
+    return getattr(capture, "registered_by", None)
 
 
 def register_from_estimate(source, n_frames: int = 10) -> str | None:

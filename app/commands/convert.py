@@ -69,6 +69,12 @@ def write_tum(source, out_dir: Path, progress=None) -> dict:
                width=int(intr.width), height=int(intr.height), depth_scale=DEPTH_SCALE,
                depth_unit="uint16, metres*5000; 0 = invalid", source=origin,
                source_format=source.format_name)
+    # What the source says about colour and depth, kept (docs/formats.md, Two cameras): frames of a
+    # two-camera capture were registered when read; a source that says nothing still says nothing.
+    if getattr(source, "two_cameras", None) is not None or getattr(source, "registered_by", None):
+        cam["depth_registered_to_rgb"] = True
+    elif not source.registered:
+        cam["depth_registered_to_rgb"] = False
     write_text_atomic(out_dir / "camera.yaml", yaml.safe_dump(cam, sort_keys=False))
     return dict(frames=len(source), poses=len(gt_lines), depth_out_of_range_pixels=n_clipped)
 

@@ -42,11 +42,14 @@ def settings(source, config) -> dict:
 
 def registration(source, estimate: bool) -> dict:
     """Edge agreement of the frames as yielded, and with `estimate` the colour camera found."""
-    from splat_core.registration_estimate import edge_agreement, estimate_registration
+    from splat_core.registration_estimate import edge_agreement, estimate_registration, registered_by_writer
 
     out = {"edge_agreement": edge_agreement(source), "registered_by_reader": source.registered,
+           "registered_by": registered_by_writer(source),
            "two_cameras": getattr(source, "two_cameras", None) is not None}
-    if estimate:
+    if estimate and out["registered_by"]:
+        out["estimate"] = {"already_registered": True, "not_estimated": out["registered_by"]}
+    elif estimate:
         e = estimate_registration(source)
         out["estimate"] = {"focal_ratio": e.focal_ratio, "color_fx": e.cameras.color.fx, "color_fy": e.cameras.color.fy,
                            "translation_m": list(e.translation), "edge_agreement_raw": e.before,
@@ -162,11 +165,15 @@ def format_text(info: dict) -> str:
 def _registration_lines(reg: dict) -> list[str]:
     ea = reg["edge_agreement"]
     how = ("registered when read (two cameras in the camera file)" if reg["two_cameras"] else
+           f"registered ({reg['registered_by']})" if reg.get("registered_by") else
            "registered" if reg["registered_by_reader"] else "not registered (camera file)")
     lines = [f"colour/depth {how}; edge agreement " + ("n/a (no depth edges)" if ea is None else f"{ea:.2f}")
              + " (colour gradient at depth edges / image mean; ~1 unrelated, higher = better aligned)"]
     e = reg.get("estimate")
-    if e:
+    if e and e.get("not_estimated"):
+        lines.append("estimate     already registered by its writer: not estimated (a search there can take the motion "
+                     "between the colour and depth exposures for an offset: docs/formats.md, Two cameras)")
+    elif e:
         tx, ty, _ = e["translation_m"]
         lines.append(f"estimate     colour focal {e['focal_ratio']:.3f} x depth (fx {e['color_fx']:.1f}), offset "
                      f"tx {tx * 100:+.2f} cm ty {ty * 100:+.2f} cm; edge agreement {e['edge_agreement_raw']:.2f} as "

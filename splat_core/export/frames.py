@@ -4,6 +4,8 @@
 every Nth frame). `export_frames(...)` yields each chosen frame's colour and depth re-read from the
 capture at the capture's resolution, with its estimated w2c. A run without a recorded capture (the
 synthetic demo) can still export its keyframes, at the working resolution they are stored at.
+A capture with two cameras is exported as its colour camera (color_camera.py): `prepare` returns
+the colour camera's intrinsics and `export_frames` its images, depth and poses.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from .color_camera import color_camera_intrinsics, handoff_cameras, to_color_camera
 
 
 @dataclass
@@ -49,8 +52,12 @@ def frame_name(run, k: int) -> str:
 
 
 def export_intrinsics(run, source) -> Intrinsics:
-    """The intrinsics of the exported images: the capture's, or the working resolution's without one."""
-    return run.intrinsics if source is None else source.intrinsics
+    """The intrinsics of the exported images: the capture's (its colour camera's when it has two),
+    or the working resolution's without one."""
+    if source is None:
+        return run.intrinsics
+    cams = handoff_cameras(source)
+    return source.intrinsics if cams is None else color_camera_intrinsics(cams)
 
 
 def open_source(run, which: str, override=None):
@@ -85,14 +92,16 @@ def export_frames(run, indices: list[int], source) -> Iterator[ExportFrame]:
     from ..run.frame_feed import prepare_frame
 
     intr = source.intrinsics
+    cams = handoff_cameras(source)
     keyframe_w2c = {kf.frame_index: kf.w2c for kf in run.keyframes}
     for k in indices:
         si = int(run.records[k]["source_index"])
         frame = prepare_frame(source, si, intr, run.config.max_depth)
         # A keyframe's frozen pose is the one the map was optimised against.
         w2c = keyframe_w2c.get(k, run.w2cs[k])
-        yield ExportFrame(k, si, frame_name(run, k), np.array(w2c, np.float64),
+        out = ExportFrame(k, si, frame_name(run, k), np.array(w2c, np.float64),
                           np.asarray(frame.color, np.float32), np.asarray(frame.depth, np.float32))
+        yield out if cams is None else to_color_camera(out, source, cams, run.config.max_depth)
 
 
 def to_uint8(color: np.ndarray) -> np.ndarray:

@@ -46,6 +46,7 @@ def _png_kind(data: bytes) -> str:
 
 class NeRFCaptureCapture(IndexedCapture):
     format_name = "nerfcapture"
+    registered_by = "the phone app: ARKit delivers depth registered to the colour image"
 
     def __init__(self, path, **options):
         super().__init__(path, **options)

@@ -51,6 +51,7 @@ def waiting_message() -> str:
 
 class NeRFCaptureStream(LiveSource):
     format_name = "nerfcapture-stream"
+    registered_by = "the phone app: ARKit delivers depth registered to the colour image"
 
     def __init__(self, capture_dir, *, idle_timeout: float | None = 30.0, max_frames: int | None = None,
                  receiver=None, url: str = URL):

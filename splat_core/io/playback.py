@@ -63,6 +63,7 @@ class RealtimePlayback(LiveSource):
         self.arrival, self.fps = arrival_times(stamps, self.count, fps)
         self.clock, self.sleep = clock, sleep
         self.format_name, self.path, self.registered = inner.format_name, inner.path, inner.registered
+        self.registered_by = inner.registered_by
         self.delivered = 0
         self._arrived = 0           # frames arrived so far (updated when SLAM asks for a frame)
         self._last = -1             # newest frame handed out

@@ -45,6 +45,7 @@ def _lzfse_decompress(data: bytes, label: str) -> bytes:
 
 class Record3DCapture(IndexedCapture):
     format_name = "record3d"
+    registered_by = "the phone app: ARKit delivers depth registered to the colour image"
 
     def __init__(self, path, **options):
         super().__init__(path, **options)

@@ -46,6 +46,7 @@ def read_traj_rows(path) -> list[np.ndarray]:
 
 class ReplicaCapture(IndexedCapture):
     format_name = "replica"
+    registered_by = "Replica: colour and depth rendered from one camera"
 
     def __init__(self, path, *, depth_scale: float | None = None, **options):
         super().__init__(path, **options)

@@ -51,6 +51,7 @@ def _read_matrix(path, shape=(4, 4)) -> np.ndarray:
 
 class ScanNetCapture(IndexedCapture):
     format_name = "scannet"
+    registered_by = "ScanNet's SensReader export: its frames are aligned (its extrinsic_depth must not be applied)"
 
     def __init__(self, path, *, depth_scale: float = DEPTH_SCALE, **options):
         super().__init__(path, **options)

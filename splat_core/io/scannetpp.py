@@ -42,6 +42,7 @@ def find_dslr_dir(path: Path) -> Path | None:
 
 class ScanNetPPCapture(IndexedCapture):
     format_name = "scannetpp"
+    registered_by = "ScanNet++: depth rendered from the scan at the DSLR camera"
 
     def __init__(self, path, *, split: str = "all", include_bad: bool = False, **options):
         super().__init__(path, **options)

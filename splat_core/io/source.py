@@ -26,6 +26,9 @@ class FrameSource(ABC):
     format_name: str = "unknown"
     path: Path | None = None
     registered: bool = True     # colour and depth pixels correspond (False: the camera file says not)
+    # Who registered them, when the capture's writer is known to (shown by `splatam info`; such a
+    # capture is not estimated: registration_estimate.registered_by_writer). None: nothing says so.
+    registered_by: str | None = None
     live: bool = False          # True for a LiveSource: pulled with next_frame(), len() grows
 
     @abstractmethod

@@ -91,6 +91,7 @@ def _read_csv(path) -> tuple[list[str] | None, list[list[float]]]:
 
 class StrayScannerCapture(IndexedCapture):
     format_name = "strayscanner"
+    registered_by = "the phone app: ARKit delivers depth registered to the colour image"
 
     def __init__(self, path, **options):
         super().__init__(path, **options)

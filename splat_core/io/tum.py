@@ -177,8 +177,11 @@ class TUMCapture(IndexedCapture):
             cam = dict(fx=fx, fy=fy, cx=cx, cy=cy, width=640, height=480)
             self.warn(f"no camera file: using the published TUM {which} intrinsics (guessed from the folder name)")
             cam_file = root
+            self.registered_by = "the TUM RGB-D benchmark: depth registered to colour by the Kinect's driver"
         self.depth_scale = float(depth_scale or cam.get("depth_scale") or DEFAULT_DEPTH_SCALE)
         self.registered = bool(cam.get("registered", True))
+        if cam.get("registered") is True:
+            self.registered_by = f"{cam_file.name} says depth_registered_to_rgb: true"
         if "width" not in cam or "height" not in cam:
             if not self._rgb:
                 raise InputError(f"{cam_file}: needs width and height")

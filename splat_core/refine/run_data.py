@@ -75,18 +75,25 @@ def load_run_data(run_dir, device="cpu") -> RunData:
 
 
 def open_run_capture(run: RunData, override=None) -> FrameSource | None:
-    """The run's capture (`override`: a path given by the user), or None when none is recorded."""
+    """The run's capture (`override`: a path given by the user), or None when none is recorded.
+    A capture the run registered from its own estimate (colour and depth not registered, no colour
+    camera given) is registered the same way again: the estimate is deterministic."""
+    from ..registration_estimate import register_from_estimate
     from ..run import open_input
 
     if override is not None:
-        return open_input(str(override))
-    if not run.capture:
+        source = open_input(str(override))
+    elif not run.capture:
         return None
-    path = Path(run.capture["path"])
-    if not path.exists():
-        raise InputError(f"{path}: the run's capture is gone (recorded in {run.run_dir / 'checkpoint'}); "
-                         "pass --input CAPTURE")
-    return open_input(str(path), format=run.capture.get("format"))
+    else:
+        path = Path(run.capture["path"])
+        if not path.exists():
+            raise InputError(f"{path}: the run's capture is gone (recorded in {run.run_dir / 'checkpoint'}); "
+                             "pass --input CAPTURE")
+        source = open_input(str(path), format=run.capture.get("format"))
+    if not source.registered and run.config.estimate_registration:
+        register_from_estimate(source)
+    return source
 
 
 def frame_views(run: RunData, source: FrameSource, intr: Intrinsics, indices: list[int]) -> list[View]:

@@ -7,6 +7,7 @@
     corridor.py   CorridorSource: a 40 m corridor walk that keeps exploring (long runs)
     phone.py      SyntheticPhoneCapture: the room as a phone records it (large colour, small depth)
     loop.py       LoopSource: one lap of the room and back (loop closure), DriftingOdometry
+    two_cameras.py write_two_camera_tum: the room seen by a depth camera and a colour camera beside it
 """
 
 from .corridor import PERIOD, CorridorSource

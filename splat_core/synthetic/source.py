@@ -54,6 +54,7 @@ class SyntheticSource(FrameSource):
 
     format_name = "synthetic"
     path = None
+    registered_by = "the synthetic scene: colour and depth rendered from one camera"
 
     def __init__(self, n_frames: int = 60, width: int = 320, height: int = 240, seed: int = 0,
                  noise: float = 0.0, holes: float = 0.0, max_depth: float | None = None,

@@ -436,6 +436,7 @@ def test_convert_round_trip(fixtures, tmp_path, capsys, name):
     back = open_capture(out)
     assert back.format_name == "tum" and len(back) == len(src)
     assert back.intrinsics == src.intrinsics
+    assert src.registered_by and back.registered_by == "camera.yaml says depth_registered_to_rgb: true"   # kept
     np.testing.assert_allclose(back.timestamps, src.timestamps, atol=1e-6)
     for i in range(len(src)):
         a, b = src[i], back[i]

@@ -167,3 +167,41 @@ def test_a_raw_capture_is_registered_from_its_own_estimate(raw):
     off = Pipeline(open_capture(raw.path), load_config("cpu", {"estimate_registration": False}), max_frames=2)
     assert not off.source.registered and off.config.tracking.color_weight == 0
     assert "tracking uses depth alone" in off.notes[0]
+
+
+def test_a_capture_registered_by_its_writer_is_not_estimated(tmp_path, raw):
+    """A camera file that says depth is registered is believed (the search would take motion between
+    the colour and depth exposures for an offset, docs/formats.md): `info` says why it does not
+    estimate. The same frames whose camera file says they are not registered are estimated."""
+    from app.commands.info import format_text, gather
+
+    cap = write_two_camera_tum(tmp_path / "said", n=3, describe=False)
+    cam = cap.path / "camera.yaml"
+    cam.write_text(cam.read_text().replace("depth_registered_to_rgb: false", "depth_registered_to_rgb: true"))
+    src = open_capture(cap.path)
+    assert src.registered and src.registered_by == "camera.yaml says depth_registered_to_rgb: true"
+    info = gather(src, estimate=True)
+    assert info["registration"]["estimate"] == {"already_registered": True, "not_estimated": src.registered_by}
+    text = format_text(info)
+    assert "registered (camera.yaml says depth_registered_to_rgb: true)" in text and "not estimated" in text
+    assert "color_intrinsics" not in text
+    said_not = gather(open_capture(raw.path), estimate=True)["registration"]
+    assert said_not["registered_by"] is None and not said_not["estimate"]["already_registered"]
+
+
+def test_which_readers_say_their_writer_registered_the_frames(tmp_path):
+    from splat_core.synthetic import SyntheticSource
+
+    assert "ScanNet" in open_capture(cf.write_scannet(tmp_path / "sn", n=2, color_size=(64, 48)).path).registered_by
+    assert "ARKit" in open_capture(cf.write_record3d(tmp_path / "r.r3d", n=2).path).registered_by
+    assert "one camera" in SyntheticSource(n_frames=2, width=32, height=24).registered_by
+    plain = open_capture(cf.write_tum(tmp_path / "t", n=2).path)   # a camera file that does not say
+    assert plain.registered and plain.registered_by is None
+
+
+@pytest.mark.skipif(not (DATA / "tum_fr1_xyz_pair").is_dir(), reason="shared data absent")
+def test_tum_is_reported_registered_without_an_estimate():
+    from app.commands.info import gather
+
+    reg = gather(open_capture(DATA / "tum_fr1_xyz_pair"), estimate=True)["registration"]
+    assert reg["estimate"]["already_registered"] and "depth_registered_to_rgb: true" in reg["registered_by"]
