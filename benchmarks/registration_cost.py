@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -26,6 +27,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as the CLI: idle OpenMP threads sleep, not spin (before torch)
 
 from common import DATA, machine_line  # noqa: E402
 
@@ -64,6 +67,8 @@ def main(argv=None) -> int:
             if pipes[name].step() is None:
                 break
             seconds[name].append(time.perf_counter() - begun)
+        if (k + 1) % 10 == 0:
+            print(f"registration_cost: {k + 1} frames", file=sys.stderr, flush=True)
     out = {"machine": machine_line(), "sequence": args.sequence, "config": args.config, "sides": {}}
     for name, s in seconds.items():
         s = np.asarray(s)
