@@ -176,8 +176,9 @@ def main(argv=None) -> int:
     if len(refs_by_frame) > 1:
         # At each lens's largest error (split where the reference is split): does the run depart there,
         # or the reference?
-        out["at_largest"] = {name: local_check(est_all, refs_by_frame, lens.get("split_se3_max", lens["whole_se3_max"])["frame"])
-                             for name, lens in out["lenses"].items()}
+        out["at_largest"] = {
+            name: local_check(est_all, refs_by_frame, lens.get("split_se3_max", lens["whole_se3_max"])["frame"])
+            for name, lens in out["lenses"].items()}
     if args.pairs:
         out["lenses"]["depth_pairs"] = depth_pairs(capture, est_all, refs_by_frame, args.pair_step, args.pairs)
     print(json.dumps(out, indent=None if args.json else 1))

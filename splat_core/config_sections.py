@@ -38,7 +38,8 @@ class AlignConfig:
     exposure: bool = setting(False, "scale the rendered grey levels by one gain per frame (the live image's "
                              "brightness over the map's, on the pixels both see) before the photometric term, so "
                              "an auto-exposure change is not taken for motion",
-                             trades="true: no measured gain on 7-Scenes or SUN3D (docs/benchmarks.md, Three lenses)")
+                             trades="true on 7-Scenes: closer to the SfM reference, further from the KinectFusion one; SUN3D unchanged "
+                             "(docs/benchmarks.md, Three lenses)")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 
