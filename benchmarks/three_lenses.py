@@ -12,6 +12,11 @@ Lenses:
    about 8 % larger in local scale than depth): the same, without splits. SE(3) and Sim(3) are
    given side by side so that a change of scale alone never passes for a fix: a change that
    lowers the SE(3) figure but not the Sim(3) one moved the scale, not the shape.
+   Every figure comes with its largest per-frame error and the frame that has it (`..._max`), and
+   "at_largest" checks each lens's largest error locally: frames +-10 around it aligned on their
+   own, the run against each reference and the references against each other (Sim(3) where the
+   SfM one is involved). Run near one reference while the two references are apart there: the
+   other reference departs, not the run (7-Scenes 600, frame 448: docs/history/2026-12-06-three-lenses.md).
 3. The depth-pair check (benchmarks/loop_pairs.py's ICP of two captured depth images, no map):
    --pairs pairs (a, a + --pair-step) spread over the run; the median distance from that
    registration to the run's relative pose and to each reference's. Needs open3d (the bench
@@ -47,26 +52,65 @@ def matched(run_stamps, ref_path: Path):
     return np.array([i for i, _ in pairs], int), np.asarray(c2w)[[k for _, k in pairs]]
 
 
-def ate_cm(est, ref, scale=False, cuts=()) -> float:
-    """RMSE in cm with every piece between `cuts` (positions) aligned on its own."""
+def frame_errors(est, ref, scale=False, cuts=()) -> np.ndarray:
+    """Per-frame camera-centre errors (cm) with every piece between `cuts` (positions) aligned on its own."""
     from splat_core.metrics import ate_errors
 
     edges = [0, *sorted(cuts), len(ref)]
-    err = np.concatenate([ate_errors(est[a:b], ref[a:b], scale=scale) for a, b in zip(edges, edges[1:]) if b - a >= 3])
-    return round(100 * float(np.sqrt(np.mean(err ** 2))), 2)
+    return 100 * np.concatenate([ate_errors(est[a:b], ref[a:b], scale=scale)
+                                 for a, b in zip(edges, edges[1:]) if b - a >= 3])
+
+
+def ate_cm(est, ref, scale=False, cuts=()) -> float:
+    """RMSE in cm with every piece between `cuts` (positions) aligned on its own."""
+    err = frame_errors(est, ref, scale, cuts)
+    return round(float(np.sqrt(np.mean(err ** 2))), 2)
+
+
+def largest(est, ref, frames, scale=False, cuts=()) -> dict:
+    """{"cm": the largest per-frame error, "frame": the frame that has it} (alignment as ate_cm)."""
+    edges = [0, *sorted(cuts), len(ref)]
+    keep = np.concatenate([np.arange(a, b) for a, b in zip(edges, edges[1:]) if b - a >= 3])
+    err = frame_errors(est, ref, scale, cuts)
+    k = int(np.argmax(err))
+    return {"cm": round(float(err[k]), 2), "frame": int(frames[keep[k]])}
+
+
+def local_check(est, refs_by_frame: dict, frame: int, half: int = 10) -> dict:
+    """Who departs at `frame`: frames frame +- `half` aligned on their own (rigid against the
+    KinectFusion reference, Sim(3) where the SfM one is involved: its scale differs), the error at
+    `frame` of the run against each reference and of the references against each other. A run close
+    to one reference while the references are as far apart as the run is from the other points at
+    that other reference, not at the run."""
+    a, b = max(0, frame - half), min(len(est), frame + half + 1)
+    names = list(refs_by_frame)
+    traj = {"run": est, **refs_by_frame}
+    out = {"frame": int(frame), "window": f"{a}-{b - 1}"}
+    pairs = [("run", n) for n in names] + [(x, y) for i, x in enumerate(names) for y in names[i + 1:]]
+    for x, y in pairs:
+        X, Y = traj[x][a:b], traj[y][a:b]
+        ok = np.array([np.isfinite(X[k]).all() and np.isfinite(Y[k]).all() for k in range(b - a)])
+        if ok.sum() < 3 or not ok[frame - a]:
+            continue
+        err = frame_errors(X[ok], Y[ok], scale="sfm" in (x, y))
+        out[f"{x}_vs_{y}_cm"] = round(float(err[int(np.sum(ok[:frame - a]))]), 2)
+    return out
 
 
 def reference_rows(est, frames, ref, piece: int, breaks: list[int]) -> dict:
     cuts = [k for k in range(1, len(frames)) if any(frames[k - 1] <= b < frames[k] for b in breaks)]
-    out = {"frames": int(len(frames)), "whole_se3_cm": ate_cm(est, ref), "whole_sim3_cm": ate_cm(est, ref, True)}
+    out = {"frames": int(len(frames)), "whole_se3_cm": ate_cm(est, ref), "whole_sim3_cm": ate_cm(est, ref, True),
+           "whole_se3_max": largest(est, ref, frames)}
     if cuts:
         out["split_se3_cm"], out["breaks"] = ate_cm(est, ref, cuts=cuts), breaks
+        out["split_se3_max"] = largest(est, ref, frames, cuts=cuts)
     pieces = []
     for start in range(0, int(frames[-1]) + 1, piece):
         keep = (frames >= start) & (frames < start + piece)
         if keep.sum() >= 3:
             pieces.append({"frames": f"{start}-{min(start + piece, int(frames[-1]) + 1) - 1}",
-                           "se3_cm": ate_cm(est[keep], ref[keep]), "sim3_cm": ate_cm(est[keep], ref[keep], True)})
+                           "se3_cm": ate_cm(est[keep], ref[keep]), "sim3_cm": ate_cm(est[keep], ref[keep], True),
+                           "se3_max": largest(est[keep], ref[keep], frames[keep])})
     out["pieces"] = pieces
     return out
 
@@ -129,6 +173,12 @@ def main(argv=None) -> int:
         full = np.full((len(est_all), 4, 4), np.nan)
         full[idx] = ref
         refs_by_frame[name] = full
+    if len(refs_by_frame) > 1:
+        # At each lens's largest error (split where the reference is split): does the run depart there,
+        # or the reference?
+        out["at_largest"] = {
+            name: local_check(est_all, refs_by_frame, lens.get("split_se3_max", lens["whole_se3_max"])["frame"])
+            for name, lens in out["lenses"].items()}
     if args.pairs:
         out["lenses"]["depth_pairs"] = depth_pairs(capture, est_all, refs_by_frame, args.pair_step, args.pairs)
     print(json.dumps(out, indent=None if args.json else 1))

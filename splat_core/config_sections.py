@@ -35,6 +35,11 @@ class AlignConfig:
     stride: int = setting(1, "use every n-th live pixel in x and y at full resolution ...", unit="pixels",
                           trades="larger: faster alignment on fewer pixels (cpu: 4, gpu: 2)")
     min_points: int = setting(4096, "... but a smaller stride where that would leave fewer pixels", unit="pixels")
+    exposure: bool = setting(False, "scale the rendered grey levels by one gain per frame (the live image's "
+                             "brightness over the map's, on the pixels both see) before the photometric term, so "
+                             "an auto-exposure change is not taken for motion",
+                             trades="true on 7-Scenes: closer to the SfM reference, further from the KinectFusion one; SUN3D unchanged "
+                             "(docs/benchmarks.md, Three lenses)")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 

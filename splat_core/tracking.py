@@ -205,7 +205,7 @@ def align_options(config: TrackingConfig, intr: Intrinsics, near: float, **overr
     a = config.align
     options = dict(backend=a.backend, levels=a.levels, iterations=a.iterations, passes=a.passes,
                    color_weight=a.color_weight, silhouette=config.silhouette_threshold, near=near,
-                   depth_noise=a.depth_noise, live_stride=sparse_step(a.stride, intr, a.min_points))
+                   depth_noise=a.depth_noise, exposure=a.exposure, live_stride=sparse_step(a.stride, intr, a.min_points))
     return {**options, **override}
 
 

@@ -2,7 +2,7 @@
 
     align_to_map(gaussians, color, depth, intrinsics, w2c_init, *, backend="auto", levels=3, iterations=10,
                  passes=1, color_weight=1.0, silhouette=0.99, near=0.01, max_distance=0.1,
-                 depth_noise=False, live_stride=1, sync=None)
+                 depth_noise=False, live_stride=1, sync=None, exposure=False)
         -> AlignResult(w2c 4 x 4, correspondences, rmse_depth, first_render)
 
 gaussians   a `Gaussians` (the map's detached tensors: means N x 3, ...); the map is rendered at
@@ -19,7 +19,9 @@ first_render   the map rendered at w2c_init (a `Render`: callers reuse it).
 The solve (numba_backend.py's docstring): point-to-plane depth + grey-level residuals against the
 rendered map, Huber weights, Gauss-Newton coarse to fine over `levels` pyramid levels with
 `iterations` per level, every live_stride-th live pixel at the finest level, rendered pixels with
-silhouette > `silhouette` only, associations farther than `max_distance` dropped.
+silhouette > `silhouette` only, associations farther than `max_distance` dropped. `exposure`: the
+rendered grey levels are scaled by `exposure_gain` (live over rendered, on the pixels both have)
+before the photometric term, once per render.
 
 Backends (tracking.align.backend): "numba" (numba_backend.py: float64 on the host), "torch"
 (torch_backend.py: the same numbers in float64 on the map's device, no host synchronisation
@@ -51,13 +53,14 @@ def resolve_backend(backend: str, device) -> str:
 def align_to_map(gaussians, color, depth, intrinsics: Intrinsics, w2c_init, *, backend: str = "auto",
                  levels: int = 3, iterations: int = 10, passes: int = 1, color_weight: float = 1.0,
                  silhouette: float = 0.99, near: float = 0.01, max_distance: float = 0.1,
-                 depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None) -> AlignResult:
+                 depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None,
+                 exposure: bool = False) -> AlignResult:
     """Solve for the w2c of (colour, depth at `intrinsics`) against the map rendered near w2c_init,
     by `backend` (see the module docstring). `sync` concerns the torch backend only (the Numba one
     always stops a converged level early)."""
     options = dict(levels=levels, iterations=iterations, passes=passes, color_weight=color_weight,
                    silhouette=silhouette, near=near, max_distance=max_distance, depth_noise=depth_noise,
-                   live_stride=live_stride)
+                   live_stride=live_stride, exposure=exposure)
     if resolve_backend(backend, gaussians.means.device) == "torch":
         from .torch_backend import align_to_map_torch
         return align_to_map_torch(gaussians, color, depth, intrinsics, w2c_init, sync=sync, **options)

@@ -51,6 +51,21 @@ def _grey(color: np.ndarray) -> np.ndarray:
     return (color @ np.array([0.299, 0.587, 0.114])).astype(np.float64)
 
 
+EXPOSURE_RANGE = (0.5, 2.0)     # the gain exposure_gain may return
+
+
+def exposure_gain(live_grey, model_grey, mask) -> float:
+    """One gain g so that g * model_grey matches live_grey's brightness on `mask` (the pixels the map
+    explains and the frame has depth for): the ratio of their sums, clipped to EXPOSURE_RANGE; 1
+    where fewer than 50 pixels or no brightness. Numpy or torch arrays (a Python float back)."""
+    if int(mask.sum()) < 50:
+        return 1.0
+    live, model = float(live_grey[mask].sum()), float(model_grey[mask].sum())
+    if not (live > 0 and model > 0):
+        return 1.0
+    return float(min(max(live / model, EXPOSURE_RANGE[0]), EXPOSURE_RANGE[1]))
+
+
 def _se3_exp(xi: np.ndarray) -> np.ndarray:
     """Twist (v, w) -> 4x4 rigid transform."""
     v, w = xi[:3], xi[3:]
@@ -200,7 +215,8 @@ def _gauss_newton_step(level: _Level, X: np.ndarray, color_weight: float, max_di
 def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, intr: Intrinsics,
                  w2c_init: np.ndarray, *, levels: int = 3, iterations: int = 10, passes: int = 1,
                  color_weight: float = 1.0, silhouette: float = 0.99, near: float = 0.01,
-                 max_distance: float = 0.1, depth_noise: bool = False, live_stride: int = 1) -> AlignResult:
+                 max_distance: float = 0.1, depth_noise: bool = False, live_stride: int = 1,
+                 exposure: bool = False) -> AlignResult:
     """Solve for the w2c of (colour HxWx3, depth HxW at `intr`) against the map rendered near w2c_init.
 
     live_stride > 1 uses every live_stride-th live pixel (in x and y) at the finest level only.
@@ -216,6 +232,8 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
         valid = alpha > silhouette
         model_depth = np.where(valid, out.depth.detach().cpu().numpy() / np.maximum(alpha, 1e-6), 0.0)
         model_grey = _grey(out.color.detach().cpu().numpy().astype(np.float64))
+        if exposure:
+            model_grey = model_grey * exposure_gain(live_grey, model_grey, valid & (depth > 0))
         X = np.eye(4)
         for level in reversed(range(levels)):
             s = 0.5 ** level

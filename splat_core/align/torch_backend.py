@@ -30,7 +30,7 @@ import torch
 from ..camera import Intrinsics
 from ..render import render
 from .cv_torch import _on, erode3, resize_nearest, resize_smooth, sobel  # noqa: F401 (the pyramid's operations)
-from .numba_backend import AlignResult
+from .numba_backend import AlignResult, exposure_gain
 
 GREY = (0.299, 0.587, 0.114)
 
@@ -239,7 +239,8 @@ def level_intrinsics(intr: Intrinsics, level: int) -> Intrinsics:
 def align_to_map_torch(gaussians, color, depth, intr: Intrinsics, w2c_init, *, levels: int = 3,
                        iterations: int = 10, passes: int = 1, color_weight: float = 1.0,
                        silhouette: float = 0.99, near: float = 0.01, max_distance: float = 0.1,
-                       depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None) -> AlignResult:
+                       depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None,
+                       exposure: bool = False) -> AlignResult:
     """numba_backend.align_to_map on the device of `gaussians` (colour H x W x 3 and depth H x W:
     numpy arrays or tensors). sync: let the host stop converged loops early (default: on the CPU)."""
     device = gaussians.means.device
@@ -268,6 +269,8 @@ def align_to_map_torch(gaussians, color, depth, intr: Intrinsics, w2c_init, *, l
         valid = alpha > silhouette
         model_depth = torch.where(valid, out.depth.detach().to(f64) / torch.clamp(alpha, min=1e-6), 0.0)
         model_grey = grey(out.color.detach())
+        if exposure:    # one host synchronisation per render (the gain is a Python float)
+            model_grey = model_grey * exposure_gain(live_grey_full, model_grey, valid & (live_depth_full > 0))
         X = eye4
         for lv in reversed(range(levels)):
             li = lis[lv]

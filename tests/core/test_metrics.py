@@ -190,3 +190,23 @@ def test_three_lenses_cuts_pieces_and_splits_where_the_reference_breaks():
     assert rows["split_se3_cm"] < 1e-6 < rows["whole_se3_cm"]
     assert [p["frames"] for p in rows["pieces"]] == ["0-19", "20-39"]
     assert rows["pieces"][0]["se3_cm"] < 1e-6 < rows["pieces"][1]["se3_cm"]
+
+
+def test_three_lenses_reports_the_largest_error_and_who_departs_there():
+    from three_lenses import local_check, reference_rows
+
+    t = np.arange(60)
+    est = np.stack([pose_matrix(np.eye(3), [0.01 * k, 0.002 * k, 0]) for k in t])
+    kf, sfm = est.copy(), est.copy()
+    kf[30:33, 1, 3] += 0.05                   # the first reference alone leaves for three frames
+    sfm[:, :3, 3] *= 1.08                     # the second one agrees up to its scale
+    rows = reference_rows(est, t, kf, piece=20, breaks=[])
+    assert rows["whole_se3_max"]["frame"] in (30, 31, 32) and rows["whole_se3_max"]["cm"] > 3
+    assert [p["se3_max"]["frame"] in (30, 31, 32) for p in rows["pieces"]] == [False, True, False]
+    refs = {"kinectfusion": kf, "sfm": sfm}
+    here = local_check(est, refs, 31)
+    assert here["window"] == "21-41"
+    assert here["run_vs_kinectfusion_cm"] > 3 and here["kinectfusion_vs_sfm_cm"] > 3
+    assert here["run_vs_sfm_cm"] < 1e-6          # Sim(3): the run departs from neither
+    refs["sfm"][31] = np.nan                      # a frame a reference lacks is left out
+    assert "run_vs_sfm_cm" not in local_check(est, refs, 31)
