@@ -15,6 +15,8 @@ from .config_schema import section, setting
 AlignBackend = Literal["auto", "numba", "torch"]
 TrackingPixels = Literal["all", "random", "gradient", "depth_edges"]
 KeyframeSelection = Literal["overlap", "random"]
+LiveMapping = Literal["newest", "keyframes"]
+LiveCheckpoint = Literal["drain", "published"]
 ALIGN_BACKENDS = get_args(AlignBackend)
 TRACKING_PIXELS = get_args(TrackingPixels)
 KEYFRAME_SELECTIONS = get_args(KeyframeSelection)
@@ -35,6 +37,14 @@ class AlignConfig:
     stride: int = setting(1, "use every n-th live pixel in x and y at full resolution ...", unit="pixels",
                           trades="larger: faster alignment on fewer pixels (cpu: 4, gpu: 2)")
     min_points: int = setting(4096, "... but a smaller stride where that would leave fewer pixels", unit="pixels")
+    tolerance: float = setting(1e-7, "a pyramid level's Gauss-Newton iterations stop when a step changes no entry "
+                               "of the 4 x 4 pose by this much (radians, metres)", trades="larger: fewer iterations "
+                               "per frame, a pose that stops short of the solve's minimum (live: 1e-4)")
+    reuse_render: int = setting(0, "frames after the one it was made for that the alignment's dense render of a map "
+                                "version serves again (the map's culled Gaussians too), aligned from the render's "
+                                "pose; a new map version renders anew; 0: a render per frame", unit="frames",
+                                trades="more: fewer renders, an alignment against a render from further away "
+                                "(live: 4)")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 
@@ -153,6 +163,18 @@ class LiveConfig:
                          "frame 0 and tracks against the newest published map, the mapper maps the keyframes and "
                          "the newest frame of what was handed over (the `live` preset)",
                          trades="false: tracking at its own rate, frames between keyframes are not mapped")
+    map: LiveMapping = setting("newest", "with wait false, what a mapper step maps: newest (the keyframes handed over "
+                               "and the newest frame, optimised over the newest frame's window) or keyframes (only "
+                               "keyframes: a step per keyframe, optimised over the newest keyframe's window; between "
+                               "keyframes the mapper idles and leaves the cores to the tracker; the `live` preset)",
+                               trades="keyframes: a faster tracker, a map that is a keyframe interval behind")
+    checkpoint: LiveCheckpoint = setting("drain", "a checkpoint of the live engine: drain (wait until every frame "
+                                         "handed over is mapped, then save: the tracker stalls meanwhile) or "
+                                         "published (the mapper saves its state after its next step, with the "
+                                         "frames up to the newest one it mapped; the tracker never waits; a resume "
+                                         "tracks the frames after it again; the `live` preset)",
+                                         trades="published: no stall; a resume repeats the frames the mapper had "
+                                         "not mapped")
 
 
 @dataclass
