@@ -45,6 +45,10 @@ class AlignConfig:
                                 "pose; a new map version renders anew; 0: a render per frame", unit="frames",
                                 trades="more: fewer renders, an alignment against a render from further away "
                                 "(live: 4)")
+    reuse_rival: bool = setting(True, "on a frame aligned against a reused render: score the prediction with a "
+                                "sparse-pixel render of its own, so the aligned pose is kept only if it beats it "
+                                "(false: keep the aligned pose; the polish and the lost-tracking check still judge it)",
+                                trades="false: one render less on those frames, no fallback to the prediction")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 

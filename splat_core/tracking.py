@@ -250,13 +250,18 @@ class Tracker:
                 else self.observe(color, depth, self.intrinsics)
             if model is not None:        # the render is not at the prediction: its loss costs a render of its own
                 self._model = model[:4] + (model[4] + 1,)
-                with torch.no_grad():
-                    prediction = candidate("prediction", start, full.render(self.renderer, g, start), full, tc)
+                if not tc.align.reuse_rival:
+                    prediction = None
+                else:
+                    with torch.no_grad():
+                        prediction = candidate("prediction", start, full.render(self.renderer, g, start), full, tc)
             else:
                 if reuse and tc.align.reuse_render > 0:
                     self._model = (gaussians, g, aligned.first_render, start, 0)
                 prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
-            if observations and full is observations[0]:
+            if prediction is None:       # tracking.align.reuse_rival false: the aligned pose, unchallenged
+                start = Candidate("aligned", aligned.w2c, float("nan"), 0)
+            elif observations and full is observations[0]:
                 # Accept rides on the polish's first iteration, which evaluates the aligned pose anyway.
                 start, rival = Candidate("aligned", aligned.w2c, float("nan"), 0), prediction
             else:
