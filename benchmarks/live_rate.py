@@ -4,6 +4,11 @@ invocation. Prints a markdown table (and, with --json, the rows).
 
     python benchmarks/live_rate.py                                   # synthetic + 7-Scenes (first 100 frames)
     python benchmarks/live_rate.py --sequences synthetic --max-frames 30
+    python benchmarks/live_rate.py --max-frames 60 --no-realtime --before ../before   # + the live row of another checkout
+
+--before DIR adds a row per sequence: the live engine on the `live` preset as that checkout (a
+`git worktree` of an earlier commit) runs it, right after this checkout's, for before/after figures
+from one invocation. --max-frames applies to the synthetic sequence too when given.
 
 s/frame: `wall_seconds` of metrics.json (end of one frame to the end of the next; the median skips
 frame 0, the mean includes frame 0 and the final drain of the live mapper). Lag: frame index minus
@@ -28,13 +33,14 @@ from common import DATA, ROOT, machine_line  # noqa: E402
 RUNS = [("cpu", "sequential", None), ("live", "live", None), ("live", "live", "realtime")]
 
 
-def run(input_path, preset: str, engine: str, realtime: str | None, out: Path, max_frames: int | None) -> dict:
+def run(input_path, preset: str, engine: str, realtime: str | None, out: Path, max_frames: int | None,
+        root: Path = ROOT) -> dict:
     cmd = [sys.executable, "-m", "app.cli", "run", "--input", str(input_path), "--out", str(out), "--config", preset,
            "--engine", engine, "--device", "cpu", "--quiet"] + (["--realtime"] if realtime else [])
     if max_frames:
         cmd += ["--max-frames", str(max_frames)]
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True)
+    env = dict(os.environ, PYTHONPATH=str(root))
+    proc = subprocess.run(cmd, cwd=root, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         return {"error": (proc.stderr.strip().splitlines() or [f"exit {proc.returncode}"])[-1]}
     m = json.loads((out / "metrics.json").read_text())
@@ -53,7 +59,10 @@ def fmt(value, digits: int = 2) -> str:
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sequences", default="synthetic,7scenes_redkitchen_300")
-    p.add_argument("--max-frames", type=int, default=100, help="limit the real sequences (default 100)")
+    p.add_argument("--max-frames", type=int, default=None, help="limit the real sequences (default 100) and, when "
+                   "given, the synthetic one")
+    p.add_argument("--no-realtime", action="store_true", help="leave out the --realtime rows")
+    p.add_argument("--before", default=None, help="another checkout: its live engine on `live` as a row too")
     p.add_argument("--work", default=None)
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
@@ -64,12 +73,18 @@ def main() -> None:
     rows = []
     for seq in args.sequences.split(","):
         path = "synthetic" if seq == "synthetic" else DATA / seq
-        limit = None if seq == "synthetic" else args.max_frames
-        for preset, engine, realtime in RUNS:
-            out = work / f"{seq}__{preset}__{engine}{'__rt' if realtime else ''}"
-            row = dict(sequence=seq if limit is None else f"{seq} (first {limit})", preset=preset,
+        limit = args.max_frames if seq == "synthetic" else (args.max_frames or 100)
+        runs = [r + (ROOT, "") for r in RUNS if not (args.no_realtime and r[2])]
+        if args.before:
+            before = Path(args.before).resolve()
+            commit = subprocess.run(["git", "-C", str(before), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                    text=True).stdout.strip()
+            runs.insert(2, ("live", "live", None, before, f" (before: {commit})"))
+        for preset, engine, realtime, root, note in runs:
+            out = work / f"{seq}__{preset}__{engine}{'__rt' if realtime else ''}{'__before' if note else ''}"
+            row = dict(sequence=seq if limit is None else f"{seq} (first {limit})", preset=preset + note,
                        engine=engine + (" --realtime" if realtime else ""),
-                       **run(path, preset, engine, realtime, out, limit))
+                       **run(path, preset, engine, realtime, out, limit, root))
             rows.append(row)
             print(json.dumps(row), file=sys.stderr, flush=True)
     print("\n| sequence | preset | engine | frames (received) | median s/frame | frames/s (median) | "

@@ -15,6 +15,8 @@ from .config_schema import section, setting
 AlignBackend = Literal["auto", "numba", "torch"]
 TrackingPixels = Literal["all", "random", "gradient", "depth_edges"]
 KeyframeSelection = Literal["overlap", "random"]
+LiveMapping = Literal["newest", "keyframes"]
+LiveCheckpoint = Literal["drain", "published"]
 ALIGN_BACKENDS = get_args(AlignBackend)
 TRACKING_PIXELS = get_args(TrackingPixels)
 KEYFRAME_SELECTIONS = get_args(KeyframeSelection)
@@ -40,6 +42,18 @@ class AlignConfig:
                              "an auto-exposure change is not taken for motion",
                              trades="true on 7-Scenes: closer to the SfM reference, further from the KinectFusion one; SUN3D unchanged "
                              "(docs/benchmarks.md, Three lenses)")
+    tolerance: float = setting(1e-7, "a pyramid level's Gauss-Newton iterations stop when a step changes no entry "
+                               "of the 4 x 4 pose by this much (radians, metres)", trades="larger: fewer iterations "
+                               "per frame, a pose that stops short of the solve's minimum (live: 1e-4)")
+    reuse_render: int = setting(0, "frames after the one it was made for that the alignment's dense render of a map "
+                                "version serves again (the map's culled Gaussians too), aligned from the render's "
+                                "pose; a new map version renders anew; 0: a render per frame", unit="frames",
+                                trades="more: fewer renders, an alignment against a render from further away "
+                                "(live: 4)")
+    reuse_rival: bool = setting(True, "on a frame aligned against a reused render: score the prediction with a "
+                                "sparse-pixel render of its own, so the aligned pose is kept only if it beats it "
+                                "(false: keep the aligned pose; the polish and the lost-tracking check still judge it)",
+                                trades="false: one render less on those frames, no fallback to the prediction")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 
@@ -158,6 +172,18 @@ class LiveConfig:
                          "frame 0 and tracks against the newest published map, the mapper maps the keyframes and "
                          "the newest frame of what was handed over (the `live` preset)",
                          trades="false: tracking at its own rate, frames between keyframes are not mapped")
+    map: LiveMapping = setting("newest", "with wait false, what a mapper step maps: newest (the keyframes handed over "
+                               "and the newest frame, optimised over the newest frame's window) or keyframes (only "
+                               "keyframes: a step per keyframe, optimised over the newest keyframe's window; between "
+                               "keyframes the mapper idles and leaves the cores to the tracker; the `live` preset)",
+                               trades="keyframes: a faster tracker, a map that is a keyframe interval behind")
+    checkpoint: LiveCheckpoint = setting("drain", "a checkpoint of the live engine: drain (wait until every frame "
+                                         "handed over is mapped, then save: the tracker stalls meanwhile) or "
+                                         "published (the mapper saves its state after its next step, with the "
+                                         "frames up to the newest one it mapped; the tracker never waits; a resume "
+                                         "tracks the frames after it again; the `live` preset)",
+                                         trades="published: no stall; a resume repeats the frames the mapper had "
+                                         "not mapped")
 
 
 @dataclass

@@ -125,7 +125,7 @@ class SplaTAM:
             if not watch.active:    # constant velocity from two tracked poses only, never from a lost one
                 w2c_before = self.w2cs[-2] if watch.velocity_known(t) else None
                 w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before)
-                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted)
+                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True)
             verdict = watch.check(t, frame, tracked, gaussians, self.w2cs[watch.good[0]], list(self.keyframes))
             for k, w2c_k in verdict.filled.items():
                 self.w2cs[k] = w2c_k
@@ -266,14 +266,21 @@ class SplaTAM:
         return version.wait_ready() if version is not None else None
 
     # ------------------------------------------------------------------ state (checkpoints)
-    def state_arrays(self) -> dict:
+    def tracking_state(self) -> tuple[str, str]:
+        """The tracking side's state (the tracker's pixel choice, the lost-tracking watch) as text."""
+        return self.tracker.state(), self.lost_tracking.state()
+
+    def state_arrays(self, w2cs: list | None = None, tracking_state: tuple[str, str] | None = None) -> dict:
+        """Everything a resume needs. The live engine's mapper saves the state at the newest frame
+        it mapped: `w2cs` up to that frame and the tracking state saved right after it was tracked."""
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         arrays.update(self.keyframes.to_arrays())
-        arrays["w2cs"] = np.array(self.w2cs).reshape(-1, 4, 4)
+        arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
-        arrays["tracker_state"] = np.array(self.tracker.state())
-        arrays["lost_state"] = np.array(self.lost_tracking.state())
+        tracker_state, lost_state = self.tracking_state() if tracking_state is None else tracking_state
+        arrays["tracker_state"] = np.array(tracker_state)
+        arrays["lost_state"] = np.array(lost_state)
         if self.loop_closure is not None:
             arrays["loop_state"] = np.array(self.loop_closure.state())
             arrays["loops"] = np.array(json.dumps([r.to_dict() for r in self.loops]))

@@ -127,7 +127,9 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
     The best pose so far is kept on the device (torch.where), so an iteration asks the host
     nothing: the loop synchronises only for the rival's test (first iteration), the optional
     early stop (tracking.early_stop_tolerance > 0) and the optional budget extension
-    (depth_loss_threshold, once), and the result comes to the host once at the end."""
+    (depth_loss_threshold, once), and the result comes to the host once at the end. The last
+    iteration renders and scores its pose but takes no backward pass or step (nothing would
+    evaluate the pose it steps to), unless compat_post_step_candidate keeps post-step poses."""
     w2c_start = start.w2c if isinstance(start, Candidate) else np.asarray(start, dtype=np.float64)
     start_name = start.name if isinstance(start, Candidate) else "prediction"
     dtype, device = gaussians.means.dtype, gaussians.means.device
@@ -159,6 +161,13 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
         if not config.compat_post_step_candidate:
             best_loss, best_q, best_t, best_valid = _keep_better(value, q, t, valid, best_loss, best_q, best_t,
                                                                  best_valid)
+        extend = (done + 1 == budget and config.depth_loss_threshold is not None and not extended
+                  and float(depth_term) / max(int(mask.sum()), 1) > config.depth_loss_threshold)
+        if done + 1 == budget and not extend and not config.compat_post_step_candidate:
+            # The last iteration: its pose is evaluated above; the step after it would never be
+            # (the best pose is snapshotted before stepping), so its backward pass is skipped.
+            done += 1
+            break
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         if config.early_stop_tolerance > 0:
@@ -172,10 +181,8 @@ def polish(renderer: Renderer, gaussians: Gaussians, obs: Observation, start: Ca
             step = max(float((t.detach() - t_before).abs().max()), float((q.detach() - q_before).abs().max()))
             if step < config.early_stop_tolerance:
                 break
-        if done == budget and config.depth_loss_threshold is not None and not extended:
-            per_pixel = float(depth_term) / max(int(mask.sum()), 1)
-            if per_pixel > config.depth_loss_threshold:
-                budget, extended = 2 * budget, True
+        if extend:
+            budget, extended = 2 * budget, True
     packed = torch.cat([best_q.to(torch.float64), best_t.to(torch.float64), best_loss.to(torch.float64).reshape(1),
                         best_valid.to(torch.float64).reshape(1),
                         (obs.depth > 0).sum().to(torch.float64).reshape(1)]).cpu().numpy()
@@ -205,7 +212,8 @@ def align_options(config: TrackingConfig, intr: Intrinsics, near: float, **overr
     a = config.align
     options = dict(backend=a.backend, levels=a.levels, iterations=a.iterations, passes=a.passes,
                    color_weight=a.color_weight, silhouette=config.silhouette_threshold, near=near,
-                   depth_noise=a.depth_noise, exposure=a.exposure, live_stride=sparse_step(a.stride, intr, a.min_points))
+                   depth_noise=a.depth_noise, exposure=a.exposure, live_stride=sparse_step(a.stride, intr, a.min_points),
+                   tolerance=a.tolerance)
     return {**options, **override}
 
 
@@ -220,21 +228,40 @@ class Tracker:
         tc = config
         self.stages = [(intrinsics.fraction(s), dataclasses.replace(tc, iterations=n)) for s, n in
                        ((tc.coarse_scale, tc.coarse_iterations), (tc.resolution_scale, tc.iterations)) if n > 0]
+        self._model = None      # tracking.align.reuse_render: (map version's Gaussians, culled, render, its w2c, uses)
 
     # -------------------------------------------------------------- one frame
-    def track(self, gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, w2c_predicted: np.ndarray) -> TrackResult:
-        """The pose of (colour H x W x 3, depth H x W at the tracker's intrinsics) against the map."""
+    def track(self, gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, w2c_predicted: np.ndarray,
+              reuse: bool = False) -> TrackResult:
+        """The pose of (colour H x W x 3, depth H x W at the tracker's intrinsics) against the map.
+        reuse: the tracking of consecutive frames (SplaTAM.track), where tracking.align.reuse_render
+        may serve the alignment a render made for an earlier frame of the same map version."""
         tc = self.config
-        g = self.nearby(gaussians, w2c_predicted)
+        model = self._model if reuse and tc.align.reuse_render > 0 and tc.align.iterations > 0 else None
+        if model is not None and (model[0] is not gaussians or model[4] >= tc.align.reuse_render):
+            model = self._model = None
+        g = model[1] if model is not None else self.nearby(gaussians, w2c_predicted)
         observations = [self.observe(color, depth, intr) for intr, _ in self.stages]
         start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
         rival = None
         if tc.align.iterations > 0:
-            aligned = self.align(g, color, depth, start)
+            aligned = self.align(g, color, depth, start, None if model is None else (model[2], model[3]))
             full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
                 else self.observe(color, depth, self.intrinsics)
-            prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
-            if observations and full is observations[0]:
+            if model is not None:        # the render is not at the prediction: its loss costs a render of its own
+                self._model = model[:4] + (model[4] + 1,)
+                if not tc.align.reuse_rival:
+                    prediction = None
+                else:
+                    with torch.no_grad():
+                        prediction = candidate("prediction", start, full.render(self.renderer, g, start), full, tc)
+            else:
+                if reuse and tc.align.reuse_render > 0:
+                    self._model = (gaussians, g, aligned.first_render, start, 0)
+                prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
+            if prediction is None:       # tracking.align.reuse_rival false: the aligned pose, unchallenged
+                start = Candidate("aligned", aligned.w2c, float("nan"), 0)
+            elif observations and full is observations[0]:
                 # Accept rides on the polish's first iteration, which evaluates the aligned pose anyway.
                 start, rival = Candidate("aligned", aligned.w2c, float("nan"), 0), prediction
             else:
@@ -253,10 +280,10 @@ class Tracker:
         return dataclasses.replace(result, iterations=iterations)
 
     # -------------------------------------------------------------- helpers
-    def align(self, g: Gaussians, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray):
+    def align(self, g: Gaussians, color: np.ndarray, depth: np.ndarray, w2c: np.ndarray, model=None):
         """The Gauss-Newton alignment (tracking.align) from w2c, by the configured backend (auto:
-        torch for a map on CUDA, else Numba)."""
-        return align_to_map(g, color, depth, self.intrinsics, w2c,
+        torch for a map on CUDA, else Numba); `model`: a render to reuse (align_to_map)."""
+        return align_to_map(g, color, depth, self.intrinsics, w2c, model=model,
                             **align_options(self.config, self.intrinsics, self.renderer.near))
 
     def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:

@@ -53,15 +53,16 @@ def resolve_backend(backend: str, device) -> str:
 def align_to_map(gaussians, color, depth, intrinsics: Intrinsics, w2c_init, *, backend: str = "auto",
                  levels: int = 3, iterations: int = 10, passes: int = 1, color_weight: float = 1.0,
                  silhouette: float = 0.99, near: float = 0.01, max_distance: float = 0.1,
-                 depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None,
-                 exposure: bool = False) -> AlignResult:
+                 depth_noise: bool = False, live_stride: int = 1, tolerance: float = 1e-7,
+                 sync: bool | None = None, model: tuple | None = None, exposure: bool = False) -> AlignResult:
     """Solve for the w2c of (colour, depth at `intrinsics`) against the map rendered near w2c_init,
     by `backend` (see the module docstring). `sync` concerns the torch backend only (the Numba one
-    always stops a converged level early)."""
+    always stops a converged level early). `model`: (a Render, its w2c) to align against instead of
+    rendering at w2c_init in the first pass (Numba backend; the torch one renders)."""
     options = dict(levels=levels, iterations=iterations, passes=passes, color_weight=color_weight,
                    silhouette=silhouette, near=near, max_distance=max_distance, depth_noise=depth_noise,
-                   live_stride=live_stride, exposure=exposure)
+                   live_stride=live_stride, tolerance=tolerance, exposure=exposure)
     if resolve_backend(backend, gaussians.means.device) == "torch":
         from .torch_backend import align_to_map_torch
         return align_to_map_torch(gaussians, color, depth, intrinsics, w2c_init, sync=sync, **options)
-    return align_numba(gaussians, color, depth, intrinsics, w2c_init, **options)
+    return align_numba(gaussians, color, depth, intrinsics, w2c_init, model=model, **options)

@@ -216,17 +216,27 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
                  w2c_init: np.ndarray, *, levels: int = 3, iterations: int = 10, passes: int = 1,
                  color_weight: float = 1.0, silhouette: float = 0.99, near: float = 0.01,
                  max_distance: float = 0.1, depth_noise: bool = False, live_stride: int = 1,
-                 exposure: bool = False) -> AlignResult:
+                 tolerance: float = 1e-7, model: tuple | None = None, exposure: bool = False) -> AlignResult:
     """Solve for the w2c of (colour HxWx3, depth HxW at `intr`) against the map rendered near w2c_init.
 
     live_stride > 1 uses every live_stride-th live pixel (in x and y) at the finest level only.
+    A level stops when a step changes no entry of the pose by `tolerance` or more.
+
+    model: (a Render of `gaussians`, the w2c it was rendered at) to align against in the first pass
+    instead of rendering at w2c_init (tracking.align.reuse_render): the solve starts from w2c_init's
+    pose relative to that render.
 
     Falls back to w2c_init when the map explains too little of the frame (fewer than 50 residuals)."""
     w2c, correspondences, rmse = np.asarray(w2c_init, dtype=np.float64), 0, float("inf")
     live_grey = _grey(color)
     first = None
-    for _ in range(passes):
-        out = render(gaussians, intr, w2c, near=near)
+    for p in range(passes):
+        X0 = np.eye(4)
+        if p == 0 and model is not None:
+            out, w2c = model[0], np.asarray(model[1], dtype=np.float64)
+            X0 = w2c @ invert_pose(np.asarray(w2c_init, dtype=np.float64))   # live camera -> rendered camera
+        else:
+            out = render(gaussians, intr, w2c, near=near)
         first = out if first is None else first
         alpha = out.alpha.detach().cpu().numpy().astype(np.float64)
         valid = alpha > silhouette
@@ -234,7 +244,7 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
         model_grey = _grey(out.color.detach().cpu().numpy().astype(np.float64))
         if exposure:
             model_grey = model_grey * exposure_gain(live_grey, model_grey, valid & (depth > 0))
-        X = np.eye(4)
+        X = X0
         for level in reversed(range(levels)):
             s = 0.5 ** level
             li = intr if level == 0 else intr.scaled(max(8, round(intr.width * s)), max(8, round(intr.height * s)))
@@ -245,7 +255,7 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
             for _ in range(iterations):
                 dX, correspondences, rmse = _gauss_newton_step(lvl, X, color_weight, max_distance, depth_noise)
                 X = dX @ X
-                if np.abs(dX - np.eye(4)).max() < 1e-7:
+                if np.abs(dX - np.eye(4)).max() < tolerance:
                     break
         if correspondences < 50:
             return AlignResult(np.asarray(w2c_init, dtype=np.float64), correspondences, rmse, first)

@@ -239,8 +239,8 @@ def level_intrinsics(intr: Intrinsics, level: int) -> Intrinsics:
 def align_to_map_torch(gaussians, color, depth, intr: Intrinsics, w2c_init, *, levels: int = 3,
                        iterations: int = 10, passes: int = 1, color_weight: float = 1.0,
                        silhouette: float = 0.99, near: float = 0.01, max_distance: float = 0.1,
-                       depth_noise: bool = False, live_stride: int = 1, sync: bool | None = None,
-                       exposure: bool = False) -> AlignResult:
+                       depth_noise: bool = False, live_stride: int = 1, tolerance: float = 1e-7,
+                       sync: bool | None = None, exposure: bool = False) -> AlignResult:
     """numba_backend.align_to_map on the device of `gaussians` (colour H x W x 3 and depth H x W:
     numpy arrays or tensors). sync: let the host stop converged loops early (default: on the CPU)."""
     device = gaussians.means.device
@@ -284,7 +284,7 @@ def align_to_map_torch(gaussians, color, depth, intr: Intrinsics, w2c_init, *, l
                 X = torch.where(done, X, dX @ X)
                 correspondences = torch.where(done, correspondences, count)
                 rmse = torch.where(done, rmse, err)
-                done = done | ((dX - eye4).abs().max() < 1e-7)
+                done = done | ((dX - eye4).abs().max() < tolerance)
                 if sync and bool(done):
                     break
         newly = ~failed & (correspondences < 50)

@@ -92,6 +92,11 @@ class LiveEngine(SlamReads):
         self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
         self._settled = self._mapped        # newest frame whose mapper step (loop closure included) is done
         self._new_loops: list = []           # LoopRecords closed since the tracker last took them (FrameResult.loops)
+        # live.checkpoint published: the tracking state after each frame not yet settled, and the
+        # callback of a checkpoint the mapper saves after its next step (request_snapshot)
+        self._tracking_states: dict[int, tuple[str, str]] = {}
+        self._snapshot_callback = None
+        self.snapshots = 0
         slam.publish(self._mapped)          # before the mapper starts: readers always find a version
         self._thread: threading.Thread | None = None    # started by the first frame
 
@@ -132,6 +137,9 @@ class LiveEngine(SlamReads):
             waited += self._wait_for_map(t, max_lag=0)
             start = time.perf_counter()
             version, t, w2c, tracked = self._track(frame, w2c_given)
+        if self.config.checkpoint == "published":
+            with self._cond:
+                self._tracking_states[t] = self.slam.tracking_state()
         if t > 0:                 # the mapper's lag behind this frame's map version (frame 0 has no map)
             self.lags.append(t - version.frame_index)
             self.lag_keyframes.append(sum(self.slam.is_keyframe(k) for k in range(version.frame_index + 1, t)))
@@ -182,6 +190,29 @@ class LiveEngine(SlamReads):
         self.wait_seconds += waited
         return waited
 
+    def request_snapshot(self, callback) -> None:
+        """live.checkpoint published: the mapper calls callback(arrays, m) in its own thread after
+        its next step, with SplaTAM's state at frame m, the newest frame it has settled (every frame
+        up to m mapped or, live.map keyframes, passed over); the tracker goes on meanwhile. A
+        request not yet served is replaced by a newer one."""
+        with self._cond:
+            self._snapshot_callback = callback
+            self._cond.notify_all()
+
+    def _snapshot_if_wanted(self, m: int) -> None:
+        """In the mapper thread, between steps (the map, keyframes and mapper state are its own)."""
+        with self._cond:
+            callback, self._snapshot_callback = self._snapshot_callback, None
+            tracking_state = self._tracking_states.get(m)
+            for k in [k for k in self._tracking_states if k < m]:
+                del self._tracking_states[k]
+        if callback is None:
+            return
+        with self._poses:               # loop corrections and lost-frame fills edit poses under it
+            w2cs = list(self.slam.w2cs[:m + 1])
+        callback(self.slam.state_arrays(w2cs=w2cs, tracking_state=tracking_state), m)
+        self.snapshots += 1
+
     def drain(self) -> None:
         """Wait until every frame handed over is mapped and published."""
         with self._cond:
@@ -224,14 +255,26 @@ class LiveEngine(SlamReads):
         start = time.perf_counter()
         slam = self.slam
         newest = self._batch_newest = batch[-1][0]
+        if self.config.map == "keyframes" and not self.config.wait:
+            # Only keyframes are mapped (frame 0 is one); a batch without one settles at no cost.
+            batch = [b for b in batch if slam.is_keyframe(b[0])]
+            if not batch:
+                with self._cond:
+                    self._mapped = self._settled = newest
+                    self._cond.notify_all()
+                self._snapshot_if_wanted(newest)
+                return
+            mapped_until = self._batch_newest = batch[-1][0]
+        else:
+            mapped_until = newest
         for t, frame, w2c in batch:
-            if t == newest or slam.is_keyframe(t):
-                stats = slam.map_frame(frame, w2c, t, optimise=(t == newest))
+            if t == mapped_until or slam.is_keyframe(t):
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
         # The batch's map is published before loop closure runs: the tracker does not wait while a
         # loop closes, so it must find this batch's frames in the map (the first frame's above all).
-        self._published(newest)
+        self._published(newest, mapped_until)
         # every keyframe of the batch, oldest first: which keyframes are checked for loops does not
         # depend on how many frames the tracker handed over meanwhile
         closed = []
@@ -240,15 +283,18 @@ class LiveEngine(SlamReads):
         if closed:
             with self._cond:
                 self._new_loops.extend(closed)
-            self._published(newest)       # the seams re-mapped after the corrections
+            self._published(newest, mapped_until)       # the seams re-mapped after the corrections
         self.mapper_steps += 1
         self.mapper_seconds += time.perf_counter() - start
         with self._cond:
             self._settled = newest          # its loop closure done too: drain() may return
             self._cond.notify_all()
+        self._snapshot_if_wanted(newest)
 
-    def _published(self, newest: int) -> None:
-        self.slam.publish(newest)
+    def _published(self, newest: int, mapped_until: int | None = None) -> None:
+        """Publish the map; `mapped_until`: the newest frame in it (live.map keyframes: the newest
+        keyframe; the frames after it up to `newest` are settled, not mapped)."""
+        self.slam.publish(newest if mapped_until is None else mapped_until)
         with self._cond:
             self._mapped = newest
             self._cond.notify_all()

@@ -97,6 +97,7 @@ class Pipeline:
         self.engine = make_engine(engine, SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total),
                                   config)
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
+        self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
         self._last_step = None
@@ -163,6 +164,7 @@ class Pipeline:
             now - begun if self.streaming else result.tracking_seconds + result.mapping_seconds
         self._last_step = now
         self.references.append(frame.c2w_ref)
+        self._feed_marks.append((self.cursor, len(self.skipped)))
         self.records.append(dict(
             index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall,
             tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
@@ -174,7 +176,10 @@ class Pipeline:
             release_free_memory()
         every = self.config.checkpoint_every
         if self.folder is not None and every and (k + 1) % every == 0 and (self.total is None or k + 1 < self.total):
-            self.save_checkpoint()
+            if self.engine_name == "live" and self.config.live.checkpoint == "published":
+                self.engine.request_snapshot(self._save_published)      # saved by the mapper: no stall
+            else:
+                self.save_checkpoint()
         return result
 
     def _check_reference(self, frame: Frame, i: int) -> None:
@@ -220,16 +225,28 @@ class Pipeline:
         return ate_cm(self.estimated_c2w(), self.reference_c2w())
 
     # ------------------------------------------------------------------ checkpoints
-    def _meta(self) -> dict:
-        return dict(frames_done=len(self.records), total=self.total, indices=self.indices, engine=self.engine_name,
-                    cursor=self.cursor, skipped=self.skipped,
-                    records=self.records, references=[None if r is None else np.asarray(r).tolist()
-                                                      for r in self.references],
+    def _meta(self, frames: int | None = None) -> dict:
+        """The checkpoint's meta.json; `frames`: as it stood after that many frames (a live
+        checkpoint of what the mapper has published, `_save_published`)."""
+        if frames is None:
+            n, cursor, skipped = len(self.records), self.cursor, self.skipped
+        else:
+            n, (cursor, skips) = frames, self._feed_marks[frames - 1]
+            skipped = self.skipped[:skips]
+        return dict(frames_done=n, total=self.total, indices=self.indices, engine=self.engine_name,
+                    cursor=cursor, skipped=skipped,
+                    records=self.records[:n], references=[None if r is None else np.asarray(r).tolist()
+                                                          for r in self.references[:n]],
                     config=self.config.to_dict(), intrinsics=self.intrinsics.to_dict(),
                     input=input_record(self.source), elapsed_seconds=time.perf_counter() - self.started)
 
     def save_checkpoint(self) -> None:
         self.folder.save_checkpoint(self.engine.state_arrays(), self._meta())
+
+    def _save_published(self, arrays: dict, m: int) -> None:
+        """live.checkpoint published: called in the live mapper's thread with SplaTAM's state at frame
+        m (the newest it settled); the checkpoint holds frames 0..m, a resume goes on from m + 1."""
+        self.folder.save_checkpoint(arrays, self._meta(frames=m + 1))
 
     def _resume(self) -> None:
         ckpt = self.folder.load_checkpoint()
@@ -244,6 +261,7 @@ class Pipeline:
         self.engine.load_state(ckpt.arrays, self.folder.keyframe_file)
         self.records = list(ckpt.meta["records"])
         self.feed.load_state(ckpt.meta, len(self.records))
+        self._feed_marks = [(self.feed.cursor, len(self.feed.skipped))] * len(self.records)
         self.references = [None if r is None else np.array(r) for r in ckpt.meta["references"]]
         self.started -= float(ckpt.meta.get("elapsed_seconds", 0.0))
 

@@ -66,7 +66,7 @@ def test_align_section_validates_and_rejects_unknown_keys():
 def test_a_run_folder_written_before_the_section_is_read_with_its_keys_moved():
     old = load_config("cpu").to_dict()
     align = old["tracking"].pop("align")
-    flat = {old_key for (_, old_key) in MOVED_KEYS}     # the keys that were flat (later ones never were)
+    flat = {old_key for _, old_key in MOVED_KEYS}      # the keys that were flat (later ones never were)
     old["tracking"].update({f"align_{k}": v for k, v in align.items() if f"align_{k}" in flat})
     config = config_from_dict(old)
     assert config.tracking.align == load_config("cpu").tracking.align

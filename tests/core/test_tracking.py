@@ -108,3 +108,34 @@ def test_tracking_starts_from_the_rival_when_the_start_is_worse():
     # ... and the start when it is better.
     out = polish(renderer, g, obs, Candidate("aligned", truth, np.nan, 0), cfg, rival=at_wrong)
     assert np.allclose(out.w2c, truth, atol=1e-6) and out.start == "aligned"
+
+
+def test_a_reused_render_aligns_the_next_frame_as_a_fresh_one_does():
+    """tracking.align.reuse_render: the second frame of a map version is aligned against the dense
+    render made for the first (no render of its own: counted), from the render's pose, and lands
+    where a fresh render puts it."""
+    from splat_core.align import numba_backend
+    m, f1, truth, start = _perturbed_tracking_case()
+    config = dataclasses.replace(load_config("live").tracking, pixel_tile=4, min_pixels=1)
+    gaussians = m.tensors(detach=True)           # one map version: the same object for both frames
+    renders = []
+    original = numba_backend.render
+
+    def counted(*args, **kwargs):
+        renders.append(1)
+        return original(*args, **kwargs)
+    numba_backend.render = counted
+    try:
+        tracker = Tracker(config, f1.intrinsics, Renderer())
+        first = tracker.track(gaussians, f1.color, f1.depth, pose_matrix(np.eye(3), (0.02, 0.0, 0.0)) @ truth,
+                              reuse=True)
+        assert len(renders) == 1
+        reused = tracker.track(gaussians, f1.color, f1.depth, start, reuse=True)
+        assert len(renders) == 1                 # the first frame's render served the second
+        fresh = Tracker(config, f1.intrinsics, Renderer()).track(gaussians, f1.color, f1.depth, start)
+        assert len(renders) == 2
+    finally:
+        numba_backend.render = original
+    assert _centre_error(first.w2c, truth) < 0.01
+    assert _centre_error(reused.w2c, truth) < max(0.003, 1.5 * _centre_error(fresh.w2c, truth)), \
+        (_centre_error(reused.w2c, truth), _centre_error(fresh.w2c, truth))

@@ -143,3 +143,45 @@ def test_live_preset_tracks_on_while_the_mapper_is_blocked():
     assert engine._mapped == 5 and metrics["num_gaussians"] > results[1].num_gaussians   # frame 0's map grew
     assert (metrics["live"]["lag_frames_median"], metrics["live"]["lag_frames_max"]) == (3.0, 5)
     assert metrics["live"]["lag_keyframes_max"] == 1 and metrics["live"]["wait"] is False
+
+
+def test_live_checkpoint_saves_what_the_mapper_published_without_stalling_the_tracker(tmp_path):
+    """`live.checkpoint: published` (the `live` preset): a checkpoint falls due while the mapper is
+    held; the tracker goes on through it (no drain), the mapper saves it after its next step, with
+    the frames up to the newest it settled, and a run resumes from it."""
+    import shutil
+    config = load_config("live", overrides={"resolution": [80, 60], "checkpoint_every": 2, "eval_every": 100,
+                                            "mapping": {"first_frame_iterations": 5, "iterations": 2},
+                                            "loop_closure": {"enabled": False}})
+    assert config.live.checkpoint == "published" and load_config("cpu").live.checkpoint == "drain"
+    run = tmp_path / "run"
+    pipe = Pipeline(SyntheticSource(n_frames=8, width=80, height=60, seed=0), config, run, engine="live")
+    engine, gate, saved = pipe.engine, threading.Event(), threading.Event()
+    mapped, save = engine._map, pipe._save_published
+
+    def held(batch):                     # every step after frame 0's waits for the test
+        if batch[0][0] > 0:
+            gate.wait(120)
+        mapped(batch)
+
+    def save_and_tell(arrays, m):
+        save(arrays, m)
+        saved.set()
+    engine._map, pipe._save_published = held, save_and_tell
+    try:
+        results = [pipe.step() for _ in range(6)]      # checkpoints fall due after frames 1, 3 and 5
+        assert not gate.is_set() and not saved.is_set() and engine._settled == 0
+        assert [r.index for r in results] == list(range(6))
+    finally:
+        gate.set()
+    assert saved.wait(120)
+    meta = pipe.folder.checkpoint_meta()
+    done = meta["frames_done"]
+    assert 1 <= done <= 6 and len(meta["records"]) == done and len(pipe.folder.load_checkpoint().arrays["w2cs"]) == done
+    shutil.copytree(run, tmp_path / "copy")            # the mid-run checkpoint (finish() writes its own)
+    pipe.finish()
+    resumed = _run(Pipeline(SyntheticSource(n_frames=8, width=80, height=60, seed=0), config, tmp_path / "copy",
+                            engine="live", resume=True))
+    assert len(resumed.records) == 8
+    metrics = resumed.finish()
+    assert len(resumed.engine.slam.w2cs) == 8 and metrics["ate_rmse_cm"] < 2.0
