@@ -267,9 +267,12 @@ class LiveEngine(SlamReads):
             mapped_until = self._batch_newest = batch[-1][0]
         else:
             mapped_until = newest
+        # live.map keyframes: every keyframe of the batch is optimised over its own window (a starved
+        # mapper that finds several would otherwise give all but the newest no optimisation at all)
+        every = self.config.map == "keyframes"
         for t, frame, w2c in batch:
             if t == mapped_until or slam.is_keyframe(t):
-                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until))
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
         # The batch's map is published before loop closure runs: the tracker does not wait while a

@@ -185,3 +185,37 @@ def test_live_checkpoint_saves_what_the_mapper_published_without_stalling_the_tr
     assert len(resumed.records) == 8
     metrics = resumed.finish()
     assert len(resumed.engine.slam.w2cs) == 8 and metrics["ate_rmse_cm"] < 2.0
+
+
+def test_live_preset_optimises_every_keyframe_a_held_mapper_finds():
+    """`live.map: keyframes`: a mapper that finds several keyframes handed over at once (it was held,
+    as a starved one is) optimises each over its own window, oldest first, not only the newest (the
+    others would enter the map densified but never optimised)."""
+    config = load_config("live", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
+                                            "keyframes": {"every": 2},
+                                            "mapping": {"first_frame_iterations": 5, "iterations": 2},
+                                            "loop_closure": {"enabled": False}})
+    assert config.live.map == "keyframes"
+    pipe = Pipeline(SyntheticSource(n_frames=8, width=80, height=60, seed=0), config, engine="live")
+    engine, gate = pipe.engine, threading.Event()
+    mapped, map_frame, calls = engine._map, engine.slam.map_frame, []
+
+    def held(batch):
+        if batch[0][0] > 0:
+            gate.wait(120)
+        mapped(batch)
+
+    def recorded(frame, w2c, t, optimise=True):
+        calls.append((t, optimise))
+        return map_frame(frame, w2c, t, optimise=optimise)
+    engine._map, engine.slam.map_frame = held, recorded
+    try:
+        for _ in range(7):
+            pipe.step()
+        assert calls == [(0, True)]                            # only frame 0 mapped while held
+    finally:
+        gate.set()
+    pipe.finish()
+    keyframes = [t for t in range(1, 7) if engine.slam.is_keyframe(t)]   # frames 1-6 were handed over
+    assert len(keyframes) >= 3
+    assert calls[1:] == [(t, True) for t in keyframes]
