@@ -174,9 +174,13 @@ class LiveConfig:
                          trades="false: tracking at its own rate, frames between keyframes are not mapped")
     map: LiveMapping = setting("newest", "with wait false, what a mapper step maps: newest (the keyframes handed over "
                                "and the newest frame, optimised over the newest frame's window) or keyframes (only "
-                               "keyframes: a step per keyframe, optimised over the newest keyframe's window; between "
-                               "keyframes the mapper idles and leaves the cores to the tracker; the `live` preset)",
+                               "keyframes: each keyframe optimised over its own window; between keyframes the "
+                               "mapper idles and leaves the cores to the tracker; the `live` preset)",
                                trades="keyframes: a faster tracker, a map that is a keyframe interval behind")
+    max_keyframe_lag: int | None = setting(None, "with wait false, the tracker waits while more than this many "
+                                           "keyframes it handed over are not in the map yet (null: never)",
+                                           unit="keyframes", trades="smaller: a tracker that never runs far ahead "
+                                           "of its map (less drift), slower when the mapper cannot keep up")
     checkpoint: LiveCheckpoint = setting("drain", "a checkpoint of the live engine: drain (wait until every frame "
                                          "handed over is mapped, then save: the tracker stalls meanwhile) or "
                                          "published (the mapper saves its state after its next step, with the "

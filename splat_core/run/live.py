@@ -178,12 +178,19 @@ class LiveEngine(SlamReads):
         """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
         configured one); returns seconds waited."""
         start = time.perf_counter()
+        keyframe_lag = self.config.max_keyframe_lag if max_lag is None and not self.config.wait else None
         if max_lag is None and not self.config.wait:
             need = 0                         # only frame 0 must be in the map (nothing to track against before)
         else:
             need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))
+
+        def behind() -> bool:
+            if self._mapped < need:
+                return True
+            return keyframe_lag is not None and \
+                sum(self.slam.is_keyframe(k) for k in range(self._mapped + 1, t)) > keyframe_lag
         with self._cond:
-            while t > 0 and self._mapped < need and self.error is None and not self._closing_loop:
+            while t > 0 and behind() and self.error is None and not self._closing_loop:
                 self._cond.wait(0.5)
             self._raise()
         waited = time.perf_counter() - start
