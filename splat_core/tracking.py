@@ -28,6 +28,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import torch
@@ -217,6 +218,16 @@ def align_options(config: TrackingConfig, intr: Intrinsics, near: float, **overr
     return {**options, **override}
 
 
+class ReusedRender(NamedTuple):
+    """A dense render of one map version kept for the alignment of the next frames
+    (tracking.align.reuse_render)."""
+    gaussians: Gaussians        # the map version it renders (a newer version renders anew)
+    culled: Gaussians           # those Gaussians culled to the view it was made for
+    render: object              # the Render
+    w2c: np.ndarray             # the pose it was rendered at
+    uses: int                   # frames it has served since
+
+
 class Tracker:
     """align -> accept -> polish for one frame at a time (see the module docstring)."""
 
@@ -228,7 +239,7 @@ class Tracker:
         tc = config
         self.stages = [(intrinsics.fraction(s), dataclasses.replace(tc, iterations=n)) for s, n in
                        ((tc.coarse_scale, tc.coarse_iterations), (tc.resolution_scale, tc.iterations)) if n > 0]
-        self._model = None      # tracking.align.reuse_render: (map version's Gaussians, culled, render, its w2c, uses)
+        self._model: ReusedRender | None = None      # tracking.align.reuse_render
 
     # -------------------------------------------------------------- one frame
     def track(self, gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, w2c_predicted: np.ndarray,
@@ -238,18 +249,18 @@ class Tracker:
         may serve the alignment a render made for an earlier frame of the same map version."""
         tc = self.config
         model = self._model if reuse and tc.align.reuse_render > 0 and tc.align.iterations > 0 else None
-        if model is not None and (model[0] is not gaussians or model[4] >= tc.align.reuse_render):
+        if model is not None and (model.gaussians is not gaussians or model.uses >= tc.align.reuse_render):
             model = self._model = None
-        g = model[1] if model is not None else self.nearby(gaussians, w2c_predicted)
+        g = model.culled if model is not None else self.nearby(gaussians, w2c_predicted)
         observations = [self.observe(color, depth, intr) for intr, _ in self.stages]
         start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
         rival = None
         if tc.align.iterations > 0:
-            aligned = self.align(g, color, depth, start, None if model is None else (model[2], model[3]))
+            aligned = self.align(g, color, depth, start, None if model is None else (model.render, model.w2c))
             full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
                 else self.observe(color, depth, self.intrinsics)
             if model is not None:        # the render is not at the prediction: its loss costs a render of its own
-                self._model = model[:4] + (model[4] + 1,)
+                self._model = model._replace(uses=model.uses + 1)
                 if not tc.align.reuse_rival:
                     prediction = None
                 else:
@@ -257,7 +268,7 @@ class Tracker:
                         prediction = candidate("prediction", start, full.render(self.renderer, g, start), full, tc)
             else:
                 if reuse and tc.align.reuse_render > 0:
-                    self._model = (gaussians, g, aligned.first_render, start, 0)
+                    self._model = ReusedRender(gaussians, g, aligned.first_render, start, 0)
                 prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
             if prediction is None:       # tracking.align.reuse_rival false: the aligned pose, unchallenged
                 start = Candidate("aligned", aligned.w2c, float("nan"), 0)

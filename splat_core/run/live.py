@@ -178,11 +178,12 @@ class LiveEngine(SlamReads):
         """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
         configured one); returns seconds waited."""
         start = time.perf_counter()
-        keyframe_lag = self.config.max_keyframe_lag if max_lag is None and not self.config.wait else None
         if max_lag is None and not self.config.wait:
-            need = 0                         # only frame 0 must be in the map (nothing to track against before)
+            # only frame 0 must be in the map (nothing to track against before), and at most
+            # live.max_keyframe_lag keyframes handed over may be missing from it
+            need, keyframe_lag = 0, self.config.max_keyframe_lag
         else:
-            need = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag))
+            need, keyframe_lag = max(0, t - 1 - (self.config.max_lag if max_lag is None else max_lag)), None
 
         def behind() -> bool:
             if self._mapped < need:
@@ -272,11 +273,11 @@ class LiveEngine(SlamReads):
                 self._snapshot_if_wanted(newest)
                 return
             mapped_until = self._batch_newest = batch[-1][0]
+            # every keyframe of the batch optimised over its own window (a starved mapper that finds
+            # several would otherwise give all but the newest no optimisation at all)
+            every = True
         else:
-            mapped_until = newest
-        # live.map keyframes: every keyframe of the batch is optimised over its own window (a starved
-        # mapper that finds several would otherwise give all but the newest no optimisation at all)
-        every = self.config.map == "keyframes"
+            mapped_until, every = newest, False
         for t, frame, w2c in batch:
             if t == mapped_until or slam.is_keyframe(t):
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every))
