@@ -21,7 +21,9 @@ again what the map holds.
 time: the corridor (splat_core/synthetic/corridor.py), full SLAM with the given preset, run folder and
 checkpoints as `splatam run` writes them; the median s/frame (records' wall_seconds) of frames
 [N/10, N/5) against [0.9 N, N) (100-200 and 900-1000 for N = 1000) and their ratio, also over
-keyframes alone (`keyframe_s`: loop detection runs after each keyframe).
+keyframes alone (`keyframe_s`: loop detection runs after each keyframe); the RSS after each frame
+too (each window's median, `rss_growth_mb_per_frame` from N/10 on as `memory` computes it).
+`--engine live --preset live` times the live engine (wall_seconds: what the tracker spent on a frame).
 
 Each run is a child process of this script (so RSS is per run); `--code DIR` puts another
 checkout first on its PYTHONPATH, to measure the code before a change in the same session.
@@ -130,8 +132,9 @@ def child_time(args) -> dict:
     n = args.frames
     with tempfile.TemporaryDirectory() as tmp:
         pipe = Pipeline(CorridorSource(n_frames=n, width=w, height=h), cfg, Path(tmp) / "run", engine=args.engine)
+        rss = []
         while pipe.step() is not None:
-            pass
+            rss.append(rss_mb())
         metrics = pipe.finish()
     records = metrics["per_frame"]
 
@@ -142,13 +145,14 @@ def child_time(args) -> dict:
                     keyframe_s=round(statistics.median(keyframes), 3),
                     tracking_s=round(statistics.median(r["tracking_seconds"] for r in part), 3),
                     mapping_s=round(statistics.median(r["mapping_seconds"] for r in part), 3),
-                    gaussians=part[-1]["num_gaussians"])
+                    gaussians=part[-1]["num_gaussians"], rss_mb=round(statistics.median(rss[lo:hi]), 1))
     early, late = window(n // 10, n // 5), window(n - n // 10, n)
     return dict(mode="time", frames=n, size=f"{w}x{h}", preset=args.preset, engine=args.engine,
                 poses="given" if args.given_poses else "tracked",
                 code=args.code or str(ROOT), early=early, late=late,
                 ratio_late_to_early=round(late["s_per_frame"] / early["s_per_frame"], 3),
                 keyframe_ratio_late_to_early=round(late["keyframe_s"] / early["keyframe_s"], 3),
+                rss_growth_mb_per_frame=round(growth(rss, n // 10), 4), peak_rss_mb=round(max(rss), 1),
                 loop_closure=cfg.loop_closure.enabled,
                 ate_rmse_cm=metrics["ate_rmse_cm"], machine=machine())
 
