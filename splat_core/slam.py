@@ -105,7 +105,8 @@ class SplaTAM:
                            num_added=stats.added, num_pruned=stats.pruned,
                            tracking_seconds=tracking_seconds, mapping_seconds=mapping_seconds,
                            tracking_loss=tracked.loss if tracked else None,
-                           tracking_iterations=tracked.iterations if tracked else 0, source_index=frame.index,
+                           tracking_iterations=tracked.iterations if tracked else 0,
+                           tracking_start=tracked.start if tracked else None, source_index=frame.index,
                            map_version=map_version)
 
     def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None

@@ -30,6 +30,7 @@ class FrameResult:
     mapping_seconds: float
     tracking_loss: float | None
     tracking_iterations: int = 0
+    tracking_start: str | None = None  # the pose the polish kept or began from: "aligned", "prediction", ... (tracking.py)
     source_index: int = 0         # frame number in the capture
     frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution
     map_version: int = 0          # the map version the frame was tracked against
