@@ -130,6 +130,14 @@ class MappingConfig:
                                    "fragment 2: 10 half-image iterations within 0.3 dB of 8 whole-image ones at about "
                                    "0.8 of the cost); no saving with gsplat")
     min_tiles: int = setting(64, "... but at least this many (small images map on every tile)", unit="tiles")
+    exposure: bool = setting(False, "compare each view with the render under that view's own colour gain and "
+                             "offset per channel (least squares against the view at every iteration, pulled "
+                             "towards identity by exposure_prior), so auto-exposure changes do not pull the "
+                             "Gaussians' colours (mapping.py)",
+                             trades="true: the map keeps one exposure across frames; the render is not fitted "
+                             "to the newest frame's")
+    exposure_prior: float = setting(0.01, "weight of identity (gain 1, offset 0) in that fit, per pixel of the "
+                                    "view (0: free fit)", unit="fraction")
 
 
 @dataclass
@@ -142,6 +150,11 @@ class DensifyConfig:
                                       trades="smaller: fewer, larger new Gaussians: faster, a coarser map "
                                       "(splatam_s: 0.5)")
     initial_opacity: float = setting(0.5, "opacity of new Gaussians", unit="opacity")
+    hole_fill: float = setting(0.0, "pixels without valid depth that the map leaves empty also get new Gaussians, "
+                               "at the farthest valid depth within this fraction of the image width (a screen, "
+                               "a dark or shiny patch, a depth shadow behind an edge); 0 = off (densify.py)",
+                               unit="fraction of width",
+                               trades="larger: bigger holes get colour, at a guessed depth")
 
 
 @dataclass

@@ -4,7 +4,11 @@ A pixel gets a Gaussian where the map does not explain it yet:
   - the silhouette is below 0.5 (nothing there), or
   - the map's depth lies behind the measured depth by more than 50x the median depth error
     (new geometry in front of the map),
-and the measured depth is valid. New Gaussians sit on the back-projected pixel, with a one-pixel
+and the measured depth is valid. With densify.hole_fill > 0, pixels without valid depth where the
+map is empty get one too, at the farthest valid depth within hole_fill x the image width
+(`filled_depth`; farthest, as a depth shadow beside an edge belongs to the background): a screen
+or a black, shiny patch the depth camera misses would otherwise stay black in every render.
+New Gaussians sit on the back-projected pixel, with a one-pixel
 radius (depth / mean focal length at the densification resolution) and opacity 0.5.
 """
 
@@ -28,6 +32,27 @@ def new_pixel_mask(depth: np.ndarray, rendered_depth: np.ndarray, silhouette: np
     median_error = float(np.median(error))
     in_front = (rendered_depth > depth) & (error > config.depth_error_factor * median_error)
     return (empty | in_front) & valid
+
+
+def filled_depth(depth: np.ndarray, fraction: float) -> np.ndarray:
+    """depth with each invalid pixel set to the largest valid depth within round(fraction x width)
+    pixels (a square window); 0 where none is that near (or fraction is 0)."""
+    radius = int(round(fraction * depth.shape[1]))
+    if radius <= 0:
+        return np.where(depth > 0, depth, 0).astype(depth.dtype)
+    import cv2
+    valid = np.where(depth > 0, depth, 0).astype(np.float32)
+    grown = cv2.dilate(valid, np.ones((2 * radius + 1, 2 * radius + 1), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                       borderValue=0)
+    return np.where(depth > 0, depth, grown).astype(depth.dtype)
+
+
+def hole_pixel_mask(depth: np.ndarray, filled: np.ndarray, silhouette: np.ndarray | None,
+                    config: DensifyConfig) -> np.ndarray:
+    """H x W bool: pixels without valid depth, with a filled depth, where the map is empty
+    (silhouette None: an empty map)."""
+    holes = (depth <= 0) & (filled > 0)
+    return holes if silhouette is None else holes & (silhouette < config.silhouette_threshold)
 
 
 def gaussians_from_pixels(color: np.ndarray, depth: np.ndarray, mask: np.ndarray, intr: Intrinsics,

@@ -11,6 +11,13 @@ image's 16 x 16 tiles, chosen at random (the CPU rasterizer skips the others' wo
 least mapping.min_tiles of them: a small image (80 x 60 has 20 tiles) maps on every tile, as
 half of so few leaves large parts of the view out of each step, for little saving.
 
+With mapping.exposure the loss compares each view with the render under that view's own affine
+colour change, c -> g c + b per channel, fitted at every iteration by least squares against the
+view over the pixels the map covers (`exposure_fit`; the map's colours held, the fit pulled
+towards identity by mapping.exposure_prior), so a frame's auto-exposure does not pull the
+Gaussians' colours: they keep one exposure, near the views' average. The fit is a function of the
+render and the view, so no state is kept per frame; the gradient to the map goes through g.
+
 Only Gaussians near the window's view frusta are optimised: the others receive exactly zero
 gradient, and a freshly created Adam moves nothing with zero gradients, so the result equals
 optimising the whole map while the cost follows the visible part only.
@@ -77,6 +84,31 @@ def _mapping_loss_torch(rendered, view: View, config: MappingConfig, pixels: tor
     return config.depth_weight * depth_l1 + config.color_weight * color
 
 
+def exposure_fit(rendered: torch.Tensor, observed: torch.Tensor, mask: torch.Tensor | None,
+                 prior: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per channel gain g and offset b (3 each) minimising
+        sum_mask (g r + b - o)^2 + prior * n ((g - 1)^2 + b^2)
+    over the n pixels of `mask` (H x W bool; None: all), r the rendered colour (taken as a
+    constant), o the observed one. Identity when the render equals the view or nothing is masked."""
+    r = rendered.detach().reshape(-1, 3)
+    o = observed.detach().reshape(-1, 3).to(r.dtype)
+    if mask is not None:
+        w = mask.reshape(-1, 1).to(r.dtype)
+        r, o = r * w, o * w
+        n = w.sum()
+    else:
+        n = torch.tensor(float(r.shape[0]), dtype=r.dtype, device=r.device)
+    lam = prior * n
+    srr, sr, sro, so = (r * r).sum(0), r.sum(0), (r * o).sum(0), o.sum(0)
+    a, c, d = srr + lam, sr, n + lam                       # [[a, c], [c, d]] [g, b] = [sro + lam, so]
+    det = (a * d - c * c).clamp(min=torch.finfo(r.dtype).tiny)
+    gain = (d * (sro + lam) - c * so) / det
+    offset = (a * so - c * (sro + lam)) / det
+    if float(n) == 0:
+        return torch.ones_like(gain), torch.zeros_like(offset)
+    return gain, offset
+
+
 def draw_tiles(intr: Intrinsics, fraction: float, rng: np.random.Generator, min_tiles: int = 0):
     """A random fraction of the image's tiles, but at least min_tiles of them (tiles grid, H x W
     pixel mask), or (None, None) for all."""
@@ -130,6 +162,12 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
         view = window[k]
         tiles, pixels = draw_tiles(intr, config.tile_fraction, rng, config.min_tiles)
         out = renderer.render(sub, intr, w2cs[k], tiles=tiles)
+        if config.exposure:
+            covered = out.alpha.detach().reshape(view.depth.shape) > 0.5
+            if pixels is not None:
+                covered = covered & to_device(pixels, torch.bool, covered.device)
+            gain, offset = exposure_fit(out.color, view.color, covered, config.exposure_prior)
+            out = out._replace(color=out.color * gain + offset)
         loss = mapping_loss(out, view, config, None if pixels is None else to_device(pixels, torch.bool, view.depth.device))
         optimizer.zero_grad(set_to_none=True)
         loss.backward()

@@ -32,13 +32,13 @@ import torch
 
 from .camera import Intrinsics, invert_pose, predict_constant_velocity
 from .config import Config
-from .densify import gaussians_from_pixels, new_pixel_mask
+from .densify import filled_depth, gaussians_from_pixels, hole_pixel_mask, new_pixel_mask
 from .frame import Frame, resize_to
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
 from .loop import LoopClosure, anchors
 from .loop.records import Correction, LoopRecord
-from .mapping import View, optimise_map, prune_mask
+from .mapping import View, exposure_fit, optimise_map, prune_mask
 from .relocalise import LostTracking
 from .render import Renderer
 from .slam_state import FrameResult, MapStats, MapVersion, SlamView, snapshot_version
@@ -210,16 +210,33 @@ class SplaTAM:
     def densify(self, color, depth, w2c, t) -> int:
         intr = self.densify_intrinsics
         color_d, depth_d = resize_to(color, intr, False), resize_to(depth, intr, True)
+        silhouette = None
         if t == 0 or len(self.map) == 0:
             mask = depth_d > 0
         else:
             with torch.no_grad():
                 out = self.renderer.render_visible(self.map, intr, w2c)
-            mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), out.alpha.cpu().numpy(), self.config.densify)
+            silhouette = out.alpha.cpu().numpy()
+            mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), silhouette, self.config.densify)
+            if self.config.mapping.exposure:
+                color_d = self.unexposed(color_d, out)
+        if self.config.densify.hole_fill > 0:
+            filled = filled_depth(depth_d, self.config.densify.hole_fill)
+            mask = mask | hole_pixel_mask(depth_d, filled, silhouette, self.config.densify)
+            depth_d = filled
         new = gaussians_from_pixels(color_d, depth_d, mask, intr, w2c, t, self.config.densify,
                                     self.config.isotropic, device=self.device, dtype=self.dtype)
         self.map.append(new)
         return len(new)
+
+    def unexposed(self, color: np.ndarray, rendered) -> np.ndarray:
+        """The frame's colours brought to the map's exposure (mapping.exposure): the inverse of the
+        frame's gain and offset fitted against the map's render where it covers the frame, so new
+        Gaussians start at the exposure the map keeps."""
+        observed = torch.as_tensor(color, dtype=rendered.color.dtype, device=rendered.color.device)
+        covered = rendered.alpha.reshape(observed.shape[:2]) > 0.5
+        gain, offset = exposure_fit(rendered.color, observed, covered, self.config.mapping.exposure_prior)
+        return ((observed - offset) / gain.clamp(min=0.1)).clamp(0, 1).cpu().numpy().astype(color.dtype)
 
     def select_window(self, color, depth, w2c) -> list[View]:
         """The current view plus the latest keyframe and the keyframes that overlap it most."""

@@ -44,3 +44,35 @@ def test_new_gaussians_sit_on_back_projected_pixels_with_one_pixel_radius():
     radii = torch.exp(g.log_scales[:, 0]).detach().numpy()
     assert np.allclose(radii, f.depth[mask] / f.intrinsics.mean_focal, rtol=1e-5)
     assert np.allclose(torch.sigmoid(g.logit_opacities).detach().numpy(), 0.5)
+
+
+def test_filled_depth_takes_the_farthest_valid_depth_within_the_radius_and_leaves_valid_depth():
+    from splat_core.densify import filled_depth
+    depth = np.zeros((20, 40), np.float32)
+    depth[:, :10] = 1.0                      # near surface on the left
+    depth[:, 14:] = 3.0                      # far one on the right; columns 10-13: a depth shadow
+    depth[5:8, 30:34] = 0                    # a hole inside the far surface
+    out = filled_depth(depth, 0.1)           # radius 4 px
+    assert np.array_equal(out[depth > 0], depth[depth > 0])
+    assert np.all(out[:, 10:14] == 3.0)      # the shadow gets the background behind it
+    assert np.all(out[5:8, 30:34] == 3.0)
+    assert np.array_equal(filled_depth(depth, 0.0), depth)
+    far = np.zeros((20, 40), np.float32)
+    far[:, :5] = 2.0
+    grown = filled_depth(far, 0.1)
+    assert np.all(grown[:, 5:9] == 2.0) and np.all(grown[:, 9:] == 0)     # nothing beyond 4 px
+
+
+def test_hole_filling_densifies_only_empty_depthless_pixels():
+    from splat_core.densify import filled_depth, hole_pixel_mask
+    cfg = DensifyConfig(hole_fill=0.1)
+    depth = np.full((20, 40), 2.0, np.float32)
+    depth[5:10, 5:10] = 0                    # a hole the map does not cover
+    depth[12:16, 20:25] = 0                  # a hole the map covers already
+    silhouette = np.ones((20, 40), np.float32)
+    silhouette[:, :15] = 0.1
+    mask = hole_pixel_mask(depth, filled_depth(depth, cfg.hole_fill), silhouette, cfg)
+    expected = np.zeros_like(mask)
+    expected[5:10, 5:10] = True
+    assert np.array_equal(mask, expected)
+    assert hole_pixel_mask(depth, filled_depth(depth, cfg.hole_fill), None, cfg).sum() == 25 + 20

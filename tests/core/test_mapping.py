@@ -138,3 +138,93 @@ def test_cpu_mapping_loss_equals_the_torch_definition(dtype, drawn):
     assert torch.allclose(gc_cpu, gc_ref, rtol=tol, atol=tol * float(gc_ref.abs().max()))
     assert torch.equal(gd_cpu, gd_ref) or torch.allclose(gd_cpu, gd_ref, rtol=tol, atol=0)
     assert gd_cpu[30, 30] == 0 and bool((gd_cpu[:10, :20] == 0).all())
+
+
+def test_exposure_fit_recovers_a_known_gain_and_offset_and_is_the_objectives_minimum():
+    from splat_core.mapping import exposure_fit
+    rng = np.random.default_rng(0)
+    r = torch.as_tensor(rng.uniform(0.1, 0.9, (12, 16, 3)))
+    gain_true, offset_true = torch.tensor([1.3, 0.8, 1.1], dtype=r.dtype), torch.tensor([-0.05, 0.02, 0.0], dtype=r.dtype)
+    o = r * gain_true + offset_true
+    g, b = exposure_fit(r, o, None, prior=0.0)
+    assert torch.allclose(g, gain_true, atol=1e-9) and torch.allclose(b, offset_true, atol=1e-9)
+    g_same, b_same = exposure_fit(r, r, None, prior=0.05)          # render == view: identity
+    assert torch.allclose(g_same, torch.ones(3, dtype=r.dtype)) and torch.allclose(b_same, torch.zeros(3, dtype=r.dtype))
+
+    # With a prior and a mask: the fit is where the objective's finite-difference gradient vanishes
+    # (and the objective is larger a step away), and it lies between identity and the free fit.
+    mask = torch.as_tensor(rng.uniform(size=(12, 16)) > 0.3)
+    noisy = o + torch.as_tensor(rng.normal(0, 0.02, o.shape))
+    prior = 0.05
+    g, b = exposure_fit(r, noisy, mask, prior)
+    n = float(mask.sum())
+
+    def objective(gv, bv):
+        res = (r * gv + bv - noisy)[mask]
+        return float((res ** 2).sum() + prior * n * (((gv - 1) ** 2).sum() + (bv ** 2).sum()))
+
+    h = 1e-6
+    for c in range(3):
+        for which in ("gain", "offset"):
+            step = torch.zeros(3, dtype=r.dtype)
+            step[c] = h
+            plus = objective(g + step, b) if which == "gain" else objective(g, b + step)
+            minus = objective(g - step, b) if which == "gain" else objective(g, b - step)
+            assert abs((plus - minus) / (2 * h)) < 1e-5 * n
+            assert plus > objective(g, b) and minus > objective(g, b)
+    g_free, _ = exposure_fit(r, noisy, mask, 0.0)
+    assert torch.all((g - 1).abs() < (g_free - 1).abs())
+    g_none, b_none = exposure_fit(r, noisy, torch.zeros_like(mask), prior)
+    assert torch.equal(g_none, torch.ones(3, dtype=r.dtype)) and torch.equal(b_none, torch.zeros(3, dtype=r.dtype))
+
+
+def _mapped_colours(view_scale: float, exposure: bool, prior: float = 0.01, iterations: int = 15):
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    m = map_from_frame(f)
+    view = View(torch.as_tensor(f.color) * view_scale, torch.as_tensor(f.depth), np.eye(4))
+    cfg = MappingConfig(exposure=exposure, exposure_prior=prior)
+    optimise_map(m, [view], f.intrinsics, cfg, iterations, scene_radius=2.0, rng=np.random.default_rng(0))
+    return m, map_from_frame(f)
+
+
+def test_mapping_exposure_keeps_the_maps_colours_under_a_darker_view():
+    """A view that is the map's own frame at 0.7 exposure: without the exposure fit mapping darkens
+    the Gaussians' colours; with it they stay near the map's (the fit takes up the change)."""
+    plain, start = _mapped_colours(0.7, exposure=False)
+    fitted, _ = _mapped_colours(0.7, exposure=True)
+    drift_plain = float((plain.colors.detach() - start.colors.detach()).mean())
+    drift_fitted = float((fitted.colors.detach() - start.colors.detach()).mean())
+    assert drift_plain < -0.02
+    assert abs(drift_fitted) < 0.25 * abs(drift_plain)
+
+
+def test_mapping_exposure_with_an_overwhelming_prior_is_plain_mapping():
+    """The fit pulled all the way to identity (gain 1, offset 0) maps as without it."""
+    plain, _ = _mapped_colours(0.7, exposure=False)
+    pinned, _ = _mapped_colours(0.7, exposure=True, prior=1e12)
+    for name in ("means", "colors", "log_scales", "logit_opacities"):
+        assert torch.allclose(getattr(plain, name).detach(), getattr(pinned, name).detach(), atol=1e-6), name
+
+
+def test_densify_under_mapping_exposure_brings_new_colours_to_the_maps_exposure():
+    """New Gaussians from a frame seen at 0.7 exposure start at the map's colours (the frame's
+    gain fitted against the render, inverted), not at the frame's darker ones."""
+    import dataclasses
+
+    from splat_core.render import Renderer
+    from splat_core.slam import SplaTAM
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    cfg = load_config("cpu")
+    cfg = dataclasses.replace(cfg, mapping=dataclasses.replace(cfg.mapping, exposure=True))
+    slam = SplaTAM(cfg, f.intrinsics)
+    m = map_from_frame(f)
+    with torch.no_grad():
+        out = Renderer().render(m, f.intrinsics, np.eye(4))
+    covered = out.alpha.numpy() > 0.5
+    dark = (f.color * 0.7).astype(np.float32)
+    restored = slam.unexposed(dark, out)
+    rendered = out.color.numpy()
+    assert np.abs(restored - rendered)[covered].mean() < 0.5 * np.abs(dark - rendered)[covered].mean()
+    assert abs(float(restored[covered].mean()) - float(rendered[covered].mean())) < 0.02
