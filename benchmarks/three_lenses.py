@@ -11,7 +11,8 @@ Lenses:
 2. `groundtruth_sfm.txt` where present (7-Scenes' SfM pseudo ground truth: RGB only, no depth;
    about 8 % larger in local scale than depth): the same, without splits. SE(3) and Sim(3) are
    given side by side so that a change of scale alone never passes for a fix: a change that
-   lowers the SE(3) figure but not the Sim(3) one moved the scale, not the shape.
+   lowers the SE(3) figure but not the Sim(3) one moved the scale, not the shape. Each piece also
+   gives that Sim(3) alignment's `scale` (above 1: the reference moved further than the run).
    Every figure comes with its largest per-frame error and the frame that has it (`..._max`), and
    "at_largest" checks each lens's largest error locally: frames +-10 around it aligned on their
    own, the run against each reference and the references against each other (Sim(3) where the
@@ -76,6 +77,15 @@ def largest(est, ref, frames, scale=False, cuts=()) -> dict:
     return {"cm": round(float(err[k]), 2), "frame": int(frames[keep[k]])}
 
 
+def sim3_scale(est, ref) -> float:
+    """The scale of the Sim(3) alignment of the run onto the reference (above 1: the reference's
+    motion is larger than the run's)."""
+    from splat_core.metrics import align_similarity
+
+    ok = np.array([np.isfinite(e).all() and np.isfinite(r).all() for e, r in zip(est, ref)])
+    return round(float(align_similarity(est[ok][:, :3, 3], ref[ok][:, :3, 3])[0]), 3)
+
+
 def local_check(est, refs_by_frame: dict, frame: int, half: int = 10) -> dict:
     """Who departs at `frame`: frames frame +- `half` aligned on their own (rigid against the
     KinectFusion reference, Sim(3) where the SfM one is involved: its scale differs), the error at
@@ -110,7 +120,8 @@ def reference_rows(est, frames, ref, piece: int, breaks: list[int]) -> dict:
         if keep.sum() >= 3:
             pieces.append({"frames": f"{start}-{min(start + piece, int(frames[-1]) + 1) - 1}",
                            "se3_cm": ate_cm(est[keep], ref[keep]), "sim3_cm": ate_cm(est[keep], ref[keep], True),
-                           "se3_max": largest(est[keep], ref[keep], frames[keep])})
+                           "se3_max": largest(est[keep], ref[keep], frames[keep]),
+                           "scale": sim3_scale(est[keep], ref[keep])})
     out["pieces"] = pieces
     return out
 
