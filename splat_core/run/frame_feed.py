@@ -10,8 +10,8 @@ MAX_LEADING_BAD_FRAMES frames are all unusable is refused as a whole.
 
 A capture read by index is read one frame ahead in a thread of its own (`Prefetch`): the next
 frame is decoded (the synthetic scene: ray-cast) while the current one is tracked, instead of in
-the tracker's thread between frames (the synthetic scene takes 0.1-0.2 s a frame to make, 7-Scenes
-and SUN3D 10-25 ms to read: docs/benchmarks.md, "Live rate"). Every read of the source goes
+the tracker's thread between frames (on 2 loaded cores the synthetic scene took 0.14 s a frame to
+make, 7-Scenes and SUN3D 14-37 ms to read: benchmarks/frame_read_cost.py, docs/benchmarks.md "Live rate"). Every read of the source goes
 through one lock, so a source is never read by two threads at once.
 """
 
