@@ -125,6 +125,7 @@ class Config:
             (self.mapping.window_size >= 2, "mapping.window_size must be >= 2"),
             (0 < self.mapping.tile_fraction <= 1 and self.mapping.min_tiles >= 0,
              "mapping.tile_fraction must be in (0, 1] and mapping.min_tiles >= 0"),
+            (0 < self.mapping.first_frame_tile_fraction <= 1, "mapping.first_frame_tile_fraction must be in (0, 1]"),
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
             (min(self.lost_tracking.loss_factor, self.lost_tracking.max_speed,
                  self.lost_tracking.max_turn_rate_deg) > 0 and 0 <= self.lost_tracking.min_coverage <= 1,

@@ -103,8 +103,13 @@ class MappingConfig:
     iterations: int = setting(60, "Adam iterations on the map per mapped frame, each on one view of the window",
                               unit="iterations", trades="more: slower, a better map (16 half-image iterations map "
                               "about 1 dB better than 10 on SUN3D: docs/presets.md)")
-    first_frame_iterations: int | None = setting(None, "mapping iterations on frame 0, over every tile (it anchors "
-                                                 "every later pose); null = iterations", unit="iterations")
+    first_frame_iterations: int | None = setting(None, "mapping iterations on frame 0 (it anchors every later "
+                                                 "pose), over first_frame_tile_fraction of the tiles; null = "
+                                                 "iterations", unit="iterations")
+    first_frame_tile_fraction: float = setting(1.0, "the fraction of the 16 x 16 tiles each of frame 0's mapping "
+                                               "iterations draws (see tile_fraction)", unit="fraction",
+                                               trades="smaller: a cheaper first mapping, which the live engine's "
+                                               "tracker waits for (the `live` preset: 0.5)")
     window_size: int = setting(24, "views a mapping iteration draws from: the current frame, the latest keyframe "
                                "and overlapping keyframes", unit="views",
                                trades="larger: the map stays consistent with more of the past; the current frame "

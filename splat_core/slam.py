@@ -263,8 +263,8 @@ class SplaTAM:
         if iterations is None:
             iterations = mc.first_frame_iterations if (first and mc.first_frame_iterations is not None) \
                 else mc.iterations
-        if first:       # frame 0 anchors every later pose: its long first mapping draws every tile
-            mc = dataclasses.replace(mc, tile_fraction=1.0)
+        if first:       # frame 0 anchors every later pose: its long first mapping draws every tile (but `live`)
+            mc = dataclasses.replace(mc, tile_fraction=mc.first_frame_tile_fraction)
         stats = optimise_map(self.map, window, self.intrinsics, mc, iterations, self.scene_radius, self.rng,
                              renderer=self.renderer)
         return stats["pruned"]

@@ -7,11 +7,18 @@ A capture is read by index (`indices`: every stride-th frame, at most max_frames
 (io/source.py, e.g. nerfcapture://) is pulled with next_frame() and `indices` grows as frames
 arrive; a capture played back in real time (io/playback.py) is pulled by index (next_index()). A bad frame is skipped with a one-line warning; a capture whose first
 MAX_LEADING_BAD_FRAMES frames are all unusable is refused as a whole.
+
+A capture read by index is read one frame ahead in a thread of its own (`Prefetch`): the next
+frame is decoded (the synthetic scene: ray-cast) while the current one is tracked, instead of in
+the tracker's thread between frames (on 2 loaded cores the synthetic scene took 0.14 s a frame to
+make, 7-Scenes and SUN3D 14-37 ms to read: benchmarks/frame_read_cost.py, docs/benchmarks.md "Live rate"). Every read of the source goes
+through one lock, so a source is never read by two threads at once.
 """
 
 from __future__ import annotations
 
 import sys
+import threading
 from pathlib import Path
 from typing import Callable
 
@@ -85,6 +92,43 @@ def warn(message: str) -> None:
     print(f"warning: {message}", file=sys.stderr, flush=True)
 
 
+class Prefetch:
+    """One frame read ahead in a thread of its own: `start(i, read)` runs read(i) in the background;
+    `take(i)` returns its frame (or raises its exception) when the read was of frame i, else None."""
+
+    def __init__(self):
+        self.index: int | None = None
+        self._thread: threading.Thread | None = None
+        self._outcome: list = []        # [frame, exception] of the read in flight, once it has ended
+
+    def start(self, i: int, read: Callable[[int], Frame]) -> None:
+        outcome: list = []              # this read's own (a cancelled read's thread writes only its own)
+
+        def run():
+            try:
+                outcome.extend((read(i), None))
+            except BaseException as e:       # handed to the reader's thread by take()
+                outcome.extend((None, e))
+        self.index, self._outcome = i, outcome
+        self._thread = threading.Thread(target=run, name="frame-prefetch", daemon=True)
+        self._thread.start()
+
+    def take(self, i: int) -> Frame | None:
+        thread, outcome, index = self._thread, self._outcome, self.index
+        self.cancel()
+        if thread is None or index != i:
+            return None
+        thread.join()
+        frame, error = outcome
+        if error is not None:
+            raise error
+        return frame
+
+    def cancel(self) -> None:
+        """Forget a read in flight (its thread finishes on its own; the source's lock orders it)."""
+        self._thread, self.index, self._outcome = None, None, []
+
+
 class FrameFeed:
     def __init__(self, source: FrameSource, intrinsics: Intrinsics, config: Config, *,
                  max_frames: int | None = None, stride: int = 1):
@@ -99,6 +143,8 @@ class FrameFeed:
                 raise InputError(f"{self.where}: no frames to process")
             self.total = len(self.indices)
         self.cursor = 0                        # next position in `indices` (frames read, skipped ones included)
+        self._read_lock = threading.Lock()      # every read of the source (the prefetch thread's too)
+        self._ahead = None if self.streaming else Prefetch()
         self.skipped: list[dict] = []          # bad frames: source_index and the one-line reason
         self.warn = warn
 
@@ -108,7 +154,10 @@ class FrameFeed:
 
     def frame_at(self, i: int, raw: Frame | None = None) -> Frame:
         """Capture frame i (or `raw`, that frame as received) at the working resolution."""
-        return prepare_frame(self.source, i, self.intrinsics, self.max_depth, raw)
+        if raw is not None:
+            return prepare_frame(self.source, i, self.intrinsics, self.max_depth, raw)
+        with self._read_lock:
+            return prepare_frame(self.source, i, self.intrinsics, self.max_depth)
 
     def next(self, started: bool, check: Callable[[Frame, int], None] | None = None) -> Frame | None:
         """The next usable frame; bad ones (and those `check` refuses with InputError) are skipped
@@ -130,7 +179,11 @@ class FrameFeed:
             i = int(self.indices[self.cursor])
             self.cursor += 1
             try:
-                frame = self.frame_at(i, pulled)
+                frame = self._ahead.take(i) if self._ahead is not None else None
+                if frame is None:
+                    frame = self.frame_at(i, pulled)
+                if self._ahead is not None and self.cursor < self.total:
+                    self._ahead.start(int(self.indices[self.cursor]), self.frame_at)
                 if check is not None:
                     check(frame, i)
                 for message in held:

@@ -72,6 +72,23 @@ def test_first_frame_maps_every_tile(monkeypatch):
     assert seen == [(1.0, cfg.mapping.first_frame_iterations), (cfg.mapping.tile_fraction, cfg.mapping.iterations)]
 
 
+def test_first_frame_budget_of_the_live_preset(monkeypatch):
+    """mapping.first_frame_tile_fraction: the `live` preset's frame 0, which its tracker waits for,
+    draws its configured share of the tiles (cpu: every tile, as above); later frames are unchanged."""
+    import splat_core.slam as slam_module
+    seen = []
+    monkeypatch.setattr(slam_module, "optimise_map",
+                        lambda m, window, intr, config, iterations, *a, **k: seen.append(
+                            (config.tile_fraction, iterations)) or {"pruned": 0})
+    cfg = load_config("live")
+    assert cfg.mapping.first_frame_tile_fraction < 1
+    slam = slam_module.SplaTAM(cfg, small_source(n=2).intrinsics)
+    slam.optimise([], first=True)
+    slam.optimise([], first=False)
+    assert seen == [(cfg.mapping.first_frame_tile_fraction, cfg.mapping.first_frame_iterations),
+                    (cfg.mapping.tile_fraction, cfg.mapping.iterations)]
+
+
 def test_mapping_loss_over_drawn_tiles():
     """Over every pixel the tile loss is the full loss; over some tiles it sees those tiles only."""
     from splat_core.mapping import draw_tiles, mapping_loss

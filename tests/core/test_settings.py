@@ -192,6 +192,8 @@ def test_right_types_pass_ints_serve_as_numbers_and_keep_their_value():
         load_config("cpu", {"tracking": {"iterations": "3"}})
     with pytest.raises(InputError, match="mapping.window_size must be >= 2"):       # range checks stay
         load_config("cpu", {"mapping": {"window_size": 1}})
+    with pytest.raises(InputError, match=r"mapping.first_frame_tile_fraction must be in \(0, 1\]"):
+        load_config("live", {"mapping": {"first_frame_tile_fraction": 0}})
 
 
 def test_every_shipped_preset_and_default_fits_the_schema():
