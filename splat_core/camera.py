@@ -129,14 +129,71 @@ def project(points_cam: np.ndarray, intr: Intrinsics) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- motion model
 
-def predict_constant_velocity(w2c_prev: np.ndarray, w2c_prev2: np.ndarray | None) -> np.ndarray:
+def _skew(w: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+def _so3_jacobian(w: np.ndarray) -> np.ndarray:
+    """V(w) of SE(3)'s exponential: t = V(w) u for the twist (w, u)."""
+    W = _skew(w)
+    _, b, c = _rodrigues(float(np.linalg.norm(w)))
+    return np.eye(3) + b * W + c * W @ W
+
+
+def _rodrigues(theta: float) -> tuple[float, float, float]:
+    """sin(theta)/theta, (1 - cos(theta))/theta^2, (theta - sin(theta))/theta^3 (series near 0)."""
+    if theta < 1e-3:
+        t2 = theta * theta
+        return 1.0 - t2 / 6.0, 0.5 - t2 / 24.0, 1.0 / 6.0 - t2 / 120.0
+    return np.sin(theta) / theta, (1.0 - np.cos(theta)) / theta ** 2, (theta - np.sin(theta)) / theta ** 3
+
+
+def se3_log(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The twist (w, u) of a rigid 4x4 transform: T = se3_exp(w, u); w the rotation vector
+    (angle below pi), u the translation part before V(w)."""
+    R, t = T[:3, :3], T[:3, 3]
+    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
+    axis_sin = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0   # sin(theta) * axis
+    theta = float(np.arctan2(np.linalg.norm(axis_sin), cos))
+    if theta > np.pi - 1e-3:        # near half a turn sin(theta) vanishes: the axis from R's symmetric part
+        aat = ((R + R.T) / 2.0 - cos * np.eye(3)) / (1.0 - cos)          # = a a^T
+        k = int(np.argmax(np.diag(aat)))
+        axis = aat[:, k] / np.sqrt(aat[k, k])
+        w = theta * (axis if axis @ axis_sin >= 0 else -axis)
+    else:
+        w = axis_sin / _rodrigues(theta)[0]
+    return w, np.linalg.solve(_so3_jacobian(w), t)
+
+
+def se3_exp(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The rigid 4x4 transform of the twist (w, u) (Rodrigues for the rotation)."""
+    W = _skew(w)
+    a, b, _ = _rodrigues(float(np.linalg.norm(w)))
+    return pose_matrix(np.eye(3) + a * W + b * W @ W, _so3_jacobian(w) @ u)
+
+
+def scale_motion(delta: np.ndarray, ratio: float) -> np.ndarray:
+    """delta^ratio: the rigid motion `delta` scaled along its screw (exp(ratio log delta)); a ratio
+    of 1 returns delta itself, unchanged to the bit."""
+    if ratio == 1.0:
+        return delta
+    w, u = se3_log(delta)
+    return se3_exp(ratio * w, ratio * u)
+
+
+def predict_constant_velocity(w2c_prev: np.ndarray, w2c_prev2: np.ndarray | None, ratio: float = 1.0) -> np.ndarray:
     """Predict the next w2c by applying the last relative motion again.
 
     The paper describes constant velocity of the camera; we apply the last frame-to-frame motion
     on SE(3) (T_t = T_{t-1} T_{t-2}^-1 T_{t-1}), which is exact for constant linear and angular
     velocity, instead of the original code's quaternion-sum extrapolation of w2c translations.
+
+    `ratio`: the time from frame t-1 to t over the time from t-2 to t-1 (frames dropped by a
+    real-time playback or a stream make the gaps uneven): the last motion is scaled by it in se(3)
+    (delta^ratio), which keeps the prediction exact for a constant twist sampled at any times.
+    A ratio of 1 (every frame processed) gives the unscaled prediction bit for bit.
     """
     if w2c_prev2 is None:
         return w2c_prev.copy()
     delta = w2c_prev @ invert_pose(w2c_prev2)
-    return delta @ w2c_prev
+    return scale_motion(delta, ratio) @ w2c_prev

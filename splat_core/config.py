@@ -140,6 +140,7 @@ class Config:
              "remap_iterations, orb_by_map and orb_sample >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
             (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
+            (self.tracking.max_gap_ratio >= 1, "tracking.max_gap_ratio must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),
             (self.keyframes.selection in KEYFRAME_SELECTIONS, "keyframes.selection must be overlap or random"),
             (0 < self.tracking.resolution_scale <= 1, "tracking.resolution_scale must be in (0, 1]"),

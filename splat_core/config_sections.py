@@ -16,6 +16,7 @@ AlignBackend = Literal["auto", "numba", "torch"]
 TrackingPixels = Literal["all", "random", "gradient", "depth_edges"]
 KeyframeSelection = Literal["overlap", "random"]
 LiveMapping = Literal["newest", "keyframes"]
+KeyframeClock = Literal["capture", "processed"]
 LiveCheckpoint = Literal["drain", "published"]
 ALIGN_BACKENDS = get_args(AlignBackend)
 TRACKING_PIXELS = get_args(TrackingPixels)
@@ -87,6 +88,10 @@ class TrackingConfig:
                                           "before the pose has converged")
     outlier_factor: float | None = setting(None, "drop pixels whose depth error exceeds this x the median error "
                                            "(SplaTAM's optional rule); null = keep all")
+    max_gap_ratio: float = setting(4.0, "the constant-velocity prediction scales the last motion (in se(3)) by the "
+                                   "capture frames to this frame over those between the two before (frames "
+                                   "dropped by --realtime or a stream), at most this", unit="ratio",
+                                   trades="larger: follows longer gaps, amplifies the last motion's noise more")
     align: AlignConfig = section(AlignConfig, "the Gauss-Newton pre-alignment to the rendered map (align/)")
     pixels: TrackingPixels = setting("all", "pixels of the tracking loss: all, or a few per tile chosen at random, "
                                      "by gradient or on depth edges (pixel_selection.py)",
@@ -166,6 +171,11 @@ class DensifyConfig:
 class KeyframeConfig:
     every: int = setting(5, "frame 0, every n-th frame and the second-to-last become keyframes", unit="frames",
                          trades="smaller: more keyframes to map from, more memory")
+    clock: KeyframeClock = setting("capture", "what `every` counts: capture frames at the run's stride (a frame "
+                                   "dropped by --realtime or a stream counts; the first frame at or past every n-th "
+                                   "becomes a keyframe) or processed frames; the same with every frame processed",
+                                   trades="processed: fewer keyframes when frames are dropped, a map further behind "
+                                   "the camera")
     selection: KeyframeSelection = setting("overlap", "the window's keyframes: the most overlapping (the paper: "
                                            "top-k) or a random subset of the overlapping ones (the original code)")
     overlap_samples: int = setting(1600, "pixels sampled to score a keyframe's overlap with the view",

@@ -80,9 +80,17 @@ class Keyframe:
         return (self.images8()[1] * self.depth_step).astype(np.float32)
 
 
-def is_keyframe_time(index: int, total: int | None, every: int) -> bool:
-    """Frame 0, every `every`-th frame ((index+1) % every == 0), and the second-to-last frame."""
-    return index == 0 or (index + 1) % every == 0 or (total is not None and index == total - 2)
+def is_keyframe_time(index: int, total: int | None, every: int, step_before: int | None = None,
+                     step: int | None = None) -> bool:
+    """Frame 0, every `every`-th frame ((index+1) % every == 0), and the second-to-last frame.
+
+    With `step` and `step_before` (the frame's and the frame before's place in the capture, when
+    frames were dropped between processed ones): the first frame at or past every `every`-th capture
+    step, i.e. (step+1) // every passed a multiple since the frame before. With step = index and
+    step_before = index - 1 (no frame dropped) the two rules agree."""
+    if step is None or step_before is None:
+        step, step_before = index, index - 1
+    return index == 0 or (step + 1) // every > (step_before + 1) // every or (total is not None and index == total - 2)
 
 
 def overlap_scores(depth: np.ndarray, w2c: np.ndarray, intr: Intrinsics, keyframes: list[Keyframe],

@@ -1,13 +1,19 @@
 """SplaTAM: dense RGB-D SLAM with 3D Gaussians. `process(frame)` is one step of the paper:
 
-    w2c0   = predict(previous poses)            constant velocity
+    w2c0   = predict(previous poses)            constant velocity (scaled by the capture-frame gaps)
     w2c    = tracker.track(frame, map, w2c0)    align -> accept -> polish (tracking.py)
              lost? relocalise                   against the keyframes; still lost: hold the pose, map nothing (relocalise.py)
     new    = densify(frame, map, w2c)           silhouette < 0.5 or new geometry in front
     window = select_window(frame, w2c)          current + latest keyframe + overlapping ones
     prune(map)                                  transparent / huge Gaussians
     optimise_map(map, window)                   L1 + SSIM (pruning again every 20 iterations)
-    keyframes.add(frame, w2c)                   every n-th frame
+    keyframes.add(frame, w2c)                   every n-th capture frame (at the run's stride)
+
+Frames dropped by a real-time playback or a live stream make the processed frames' capture
+frames uneven (3 apart, then 11): SplaTAM keeps each processed frame's capture frame index
+(`frame.index`) and measures the motion model's time and the keyframe interval in capture frames
+(at the run's `stride`), not in processed frames. With every frame processed the two are the same
+and so are the results, bit for bit.
 
 `process` runs the two halves in order (the sequential engine: deterministic, resumable bit for
 bit). The live engine (run/live.py) calls `track` and `map_frame` from two threads instead; both
@@ -49,7 +55,7 @@ __all__ = ["SplaTAM", "FrameResult", "MapStats", "MapVersion", "snapshot_version
 
 class SplaTAM:
     def __init__(self, config: Config, intrinsics: Intrinsics, device="cpu", dtype=torch.float32,
-                 total_frames: int | None = None):
+                 total_frames: int | None = None, stride: int = 1):
         self.config = config
         self.intrinsics = intrinsics
         self.device, self.dtype = torch.device(device), dtype
@@ -61,6 +67,8 @@ class SplaTAM:
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)
         self.loop_closure = LoopClosure(config.loop_closure, config.seed) if config.loop_closure.enabled else None
         self.w2cs: list[np.ndarray] = []
+        self.sources: list[int] = []             # each processed frame's capture frame index (frame.index)
+        self.stride = stride                      # capture frames between processed ones when none is dropped
         self.loops: list[LoopRecord] = []        # every loop closed, oldest first
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
@@ -92,9 +100,28 @@ class SplaTAM:
         return len(self.w2cs)
 
     def is_keyframe(self, t: int) -> bool:
-        """Frame t becomes a keyframe: every n-th frame (and the second-to-last), unless tracking was lost."""
-        return self.lost_tracking.reason(t) is None and is_keyframe_time(t, self.total_frames,
-                                                                         self.config.keyframes.every)
+        """Frame t becomes a keyframe: frame 0, the first frame at or past every n-th capture frame (at
+        the run's stride; with every frame processed: every n-th frame) and the second-to-last,
+        unless tracking was lost."""
+        return self.lost_tracking.reason(t) is None and is_keyframe_time(
+            t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t))
+
+    def capture_step(self, t: int) -> int:
+        """Processed frame t's place in the capture in steps of the stride, from the first frame (t
+        itself while no frame was dropped or skipped; t when frame t is not tracked yet, and with
+        keyframes.clock processed)."""
+        if t < 0 or t >= len(self.sources) or self.config.keyframes.clock == "processed":
+            return t
+        return (self.sources[t] - self.sources[0]) // self.stride
+
+    def gap_ratio(self, source_index: int) -> float:
+        """The capture frames from the newest tracked frame to `source_index` over those between the
+        two before it: the constant-velocity prediction's time scale (capped by
+        tracking.max_gap_ratio; 1 with every frame processed)."""
+        before, last = self.sources[-2], self.sources[-1]
+        if source_index - last == last - before or last <= before or source_index <= last:
+            return 1.0
+        return min((source_index - last) / (last - before), self.config.tracking.max_gap_ratio)
 
     def result(self, frame: Frame, t: int, w2c: np.ndarray, tracked: TrackResult | None, stats: MapStats,
                num_gaussians: int, tracking_seconds: float, mapping_seconds: float,
@@ -124,14 +151,17 @@ class SplaTAM:
             watch.tracked(t, frame)
         else:
             if not watch.active:    # constant velocity from two tracked poses only, never from a lost one
-                w2c_before = self.w2cs[-2] if watch.velocity_known(t) else None
-                w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before)
+                known = watch.velocity_known(t)
+                w2c_before = self.w2cs[-2] if known else None
+                w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before,
+                                                          self.gap_ratio(int(frame.index)) if known else 1.0)
                 tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True)
             verdict = watch.check(t, frame, tracked, gaussians, self.w2cs[watch.good[0]], list(self.keyframes))
             for k, w2c_k in verdict.filled.items():
                 self.w2cs[k] = w2c_k
             tracked, w2c = verdict.result, verdict.w2c
         self.w2cs.append(w2c)
+        self.sources.append(int(frame.index))
         return t, w2c, tracked
 
     def retract(self, t: int) -> None:
@@ -140,6 +170,7 @@ class SplaTAM:
         if t != len(self.w2cs) - 1:
             raise ValueError(f"retract: frame {t} is not the newest tracked frame ({len(self.w2cs) - 1})")
         self.w2cs.pop()
+        self.sources.pop()
         self.lost_tracking.forget(t)
 
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True) -> MapStats:
@@ -294,6 +325,7 @@ class SplaTAM:
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         arrays.update(self.keyframes.to_arrays())
         arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
+        arrays["source_indices"] = np.array(self.sources[:len(arrays["w2cs"])], dtype=np.int64)
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
         tracker_state, lost_state = self.tracking_state() if tracking_state is None else tracking_state
@@ -310,6 +342,9 @@ class SplaTAM:
                                           device=self.device, dtype=self.dtype)
         self.keyframes.load_arrays(arrays, keyframe_file)
         self.w2cs = [w for w in np.asarray(arrays["w2cs"], dtype=np.float64)]
+        # a checkpoint from before capture indices were kept: every stride-th frame, none dropped
+        self.sources = [int(i) for i in arrays["source_indices"]] if "source_indices" in arrays \
+            else [k * self.stride for k in range(len(self.w2cs))]
         radius = float(arrays["scene_radius"])
         self.scene_radius = None if np.isnan(radius) else radius
         self.rng.bit_generator.state = json.loads(str(arrays["rng_state"]))

@@ -94,8 +94,8 @@ class Pipeline:
         # The preset's resolution on this capture's shape (aspect kept; resolution.py).
         self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
         self.feed = FrameFeed(source, self.intrinsics, config, max_frames=max_frames, stride=stride)
-        self.engine = make_engine(engine, SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total),
-                                  config)
+        slam = SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total, stride=stride)
+        self.engine = make_engine(engine, slam, config)
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from splat_core.camera import (Intrinsics, backproject, pose_matrix, predict_constant_velocity, project,
-                               quat_to_rotmat_np, rotmat_to_quat)
+from splat_core.camera import (Intrinsics, backproject, invert_pose, pose_matrix, predict_constant_velocity,
+                               project, quat_to_rotmat_np, rotmat_to_quat, scale_motion, se3_exp, se3_log)
 
 
 def test_backprojected_pixel_reprojects_onto_itself():
@@ -28,6 +28,36 @@ def test_quaternion_round_trip_and_constant_velocity():
     w1 = step @ w0
     assert np.allclose(predict_constant_velocity(w1, w0), step @ w1)
     assert np.allclose(predict_constant_velocity(w1, None), w1)
+
+
+def test_gap_scaled_prediction_is_exact_on_a_constant_twist_sampled_at_irregular_times():
+    # A camera on a constant screw motion (c2w(s) = c2w0 exp(s xi)), sampled with the uneven gaps a
+    # real-time playback leaves (3 capture frames, then 11, ...): the last motion scaled by the
+    # ratio of the gaps predicts every next pose exactly; the unscaled prediction does not.
+    w, u = np.array([0.004, -0.011, 0.007]), np.array([0.003, 0.001, -0.004])     # per capture frame
+    c2w0 = pose_matrix(quat_to_rotmat_np([0.9, 0.1, 0.3, -0.2]), [0.3, 0.1, -1.0])
+    times = [0, 1, 4, 15, 16, 29, 31, 32, 52]
+    w2cs = [invert_pose(c2w0 @ se3_exp(s * w, s * u)) for s in times]
+    worst_unscaled = 0.0
+    for k in range(2, len(times)):
+        ratio = (times[k] - times[k - 1]) / (times[k - 1] - times[k - 2])
+        assert np.allclose(predict_constant_velocity(w2cs[k - 1], w2cs[k - 2], ratio), w2cs[k], atol=1e-12)
+        worst_unscaled = max(worst_unscaled, np.abs(predict_constant_velocity(w2cs[k - 1], w2cs[k - 2])
+                                                     - w2cs[k]).max())
+    assert worst_unscaled > 0.05
+
+
+def test_se3_log_exp_round_trip_and_scaling_from_no_turn_to_half_a_turn():
+    rng = np.random.default_rng(3)
+    for theta in (0.0, 1e-9, 1e-4, 0.3, 2.0, np.pi - 1e-6, np.pi):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        T = se3_exp(theta * axis, rng.normal(size=3))
+        assert np.allclose(se3_exp(*se3_log(T)), T, atol=1e-12)
+        half = scale_motion(T, 0.5)
+        assert np.allclose(half @ half, T, atol=1e-12)
+    T = se3_exp(np.array([0.1, 0.2, -0.3]), np.array([1.0, 2.0, 3.0]))
+    assert scale_motion(T, 1.0) is T          # ratio 1: the unscaled motion, bit for bit
 
 
 def test_intrinsics_scaling_keeps_pixel_centres():

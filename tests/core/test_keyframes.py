@@ -16,6 +16,16 @@ def test_keyframe_schedule():
     assert [t for t in range(12) if is_keyframe_time(t, 12, 5)] == [0, 4, 9, 10]
 
 
+def test_keyframe_schedule_in_capture_frames_when_frames_were_dropped():
+    # Every frame processed: the capture rule is the processed-frame rule.
+    assert [t for t in range(12) if is_keyframe_time(t, 12, 5, t - 1, t)] == [0, 4, 9, 10]
+    # Capture frames 0, 1, 3, 7, 8, 15, 16, 30 processed: the first frame at or past capture frames
+    # 4, 9, 14, ... (every 5th) becomes a keyframe, as when every frame is processed.
+    steps = [0, 1, 3, 7, 8, 15, 16, 30]
+    chosen = [t for t in range(len(steps)) if is_keyframe_time(t, None, 5, steps[t - 1] if t else -1, steps[t])]
+    assert [steps[t] for t in chosen] == [0, 7, 15, 30]
+
+
 def test_overlap_scores_and_window_selection():
     src = small_source(n=1, w=64, h=48)
     f = src[0]

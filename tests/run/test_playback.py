@@ -136,6 +136,59 @@ def test_a_pipeline_on_a_playback_processes_the_newest_frames_and_reports_the_dr
     assert metrics["processed_share"] == pytest.approx(0.6)
 
 
+def test_a_playback_that_drops_frames_unevenly_scales_the_prediction_and_keyframes_by_capture_frames():
+    # SLAM takes 0.1, 0.3, 0.1, 0.5 s a frame in turn on the fake clock at 10 frames/s: the gaps
+    # between processed frames are uneven. The constant-velocity prediction of each frame scales
+    # the last motion by the ratio of the capture-frame gaps (capped), and keyframes fall on the
+    # first frame at or past every 5th capture frame, not on every 5th processed frame.
+    from splat_core.camera import predict_constant_velocity
+    from splat_core.config import load_config
+    from splat_core.keyframes import is_keyframe_time
+    from splat_core.run import Pipeline
+    from splat_core.synthetic import SyntheticSource
+
+    clock = FakeClock()
+    play = RealtimePlayback(SyntheticSource(n_frames=30, width=80, height=60, seed=0), fps=10.0,
+                            clock=clock, sleep=clock.sleep)
+    config = load_config("cpu", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
+                                           "mapping": {"first_frame_iterations": 5, "iterations": 2},
+                                           "loop_closure": {"enabled": False}, "tracking": {"max_gap_ratio": 2.5}})
+    pipe = Pipeline(play, config)
+    slam = pipe.engine.slam
+    process, track = pipe.engine.process, slam.tracker.track
+    durations = iter([0.1, 0.3, 0.1, 0.5] * 30)
+    predictions = []
+
+    def slow(frame, given=None):
+        clock.advance(next(durations))
+        return process(frame, given)
+
+    def tracked(gaussians, color, depth, w2c_predicted, reuse=False):
+        if len(slam.w2cs) >= 2 and slam.lost_tracking.velocity_known(len(slam.w2cs)):
+            predictions.append((list(slam.sources[-2:]), slam.w2cs[-2].copy(), slam.w2cs[-1].copy(),
+                                w2c_predicted.copy()))
+        return track(gaussians, color, depth, w2c_predicted, reuse)
+    pipe.engine.process, slam.tracker.track = slow, tracked
+    while pipe.step() is not None:
+        pass
+    sources = [r["source_index"] for r in pipe.records]
+    gaps = np.diff(sources)
+    assert len(set(gaps.tolist())) > 1 and pipe.finish()["dropped"] > 0       # frames were dropped unevenly
+    ratios = []
+    for (before, last), w2c_before, w2c_last, predicted in predictions:
+        now = sources[sources.index(last) + 1]
+        ratio = min((now - last) / (last - before), 2.5)
+        ratios.append(ratio)
+        assert np.allclose(predicted, predict_constant_velocity(w2c_last, w2c_before, ratio), atol=1e-12)
+    assert any(r > 1 for r in ratios) and any(r < 1 for r in ratios) and 2.5 in ratios   # the cap was met
+    some = next(p for p, r in zip(predictions, ratios) if r != 1)
+    assert not np.allclose(some[3], predict_constant_velocity(some[2], some[1]))          # not the unscaled one
+    keyframes = [r["source_index"] for r in pipe.records if r["is_keyframe"]]
+    assert keyframes == [s for t, s in enumerate(sources) if not pipe.records[t]["lost"] and
+                         is_keyframe_time(t, None, 5, sources[t - 1] if t else -1, s)]
+    assert keyframes != [s for t, s in enumerate(sources) if is_keyframe_time(t, None, 5)]
+
+
 def test_realtime_refuses_resume_stride_and_a_stream(tmp_path):
     from app.run_setup import setup_run
 
