@@ -24,6 +24,9 @@ checkpoints as `splatam run` writes them; the median s/frame (records' wall_seco
 keyframes alone (`keyframe_s`: loop detection runs after each keyframe); the RSS after each frame
 too (each window's median, `rss_growth_mb_per_frame` from N/10 on as `memory` computes it).
 `--engine live --preset live` times the live engine (wall_seconds: what the tracker spent on a frame).
+Accuracy over the run: the ATE of the first k frames at every eighth of it (`ate_first_frames_cm`:
+where a drift starts), frames lost, and frames whose tracking kept the constant-velocity
+prediction (`tracking_start`).
 
 Each run is a child process of this script (so RSS is per run); `--code DIR` puts another
 checkout first on its PYTHONPATH, to measure the code before a change in the same session.
@@ -121,6 +124,8 @@ def child_memory(args) -> dict:
 
 def child_time(args) -> dict:
     from splat_core.config import load_config
+    from splat_core.io.trajectory import read_tum_trajectory
+    from splat_core.metrics import ate_errors
     from splat_core.run import Pipeline
     from splat_core.synthetic import CorridorSource
 
@@ -136,7 +141,12 @@ def child_time(args) -> dict:
         while pipe.step() is not None:
             rss.append(rss_mb())
         metrics = pipe.finish()
+        stamps, c2w = read_tum_trajectory(Path(tmp) / "run" / "trajectory.txt")
     records = metrics["per_frame"]
+    reference = np.asarray(pipe.source.c2w)[[r["source_index"] for r in records]]
+    # where a drift starts: the ATE of the first k frames, at every eighth of the run
+    ate_growth = {str(k): round(100 * float(np.sqrt(np.mean(ate_errors(np.asarray(c2w)[:k], reference[:k]) ** 2))), 2)
+                  for k in range(n // 8, n + 1, n // 8)}
 
     def window(lo, hi):
         part = records[lo:hi]
@@ -154,7 +164,9 @@ def child_time(args) -> dict:
                 keyframe_ratio_late_to_early=round(late["keyframe_s"] / early["keyframe_s"], 3),
                 rss_growth_mb_per_frame=round(growth(rss, n // 10), 4), peak_rss_mb=round(max(rss), 1),
                 loop_closure=cfg.loop_closure.enabled,
-                ate_rmse_cm=metrics["ate_rmse_cm"], machine=machine())
+                ate_rmse_cm=metrics["ate_rmse_cm"], ate_first_frames_cm=ate_growth,
+                frames_lost=metrics["frames_lost"],
+                prediction_kept=sum(r.get("tracking_start") == "prediction" for r in records), machine=machine())
 
 
 def main(argv=None) -> int:
