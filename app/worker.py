@@ -2,9 +2,10 @@
 
 The worker owns the pipeline: it is the only thread that calls `step()` or reads the live
 optimiser tensors. After each frame it publishes an immutable snapshot (latest only) and
-renders the map from the tracked pose for the live panel. It obeys pause / resume / step one
-frame / stop between frames, never calls viser, and when the sequence ends it writes the run
-folder with `pipeline.finish()` (as `splatam run` does) and stays alive only as a last snapshot.
+hands the frame to the live panel's renderer (live_preview.py, its own thread). It obeys
+pause / resume / step one frame / stop between frames, never calls viser, and when the sequence
+ends it writes the run folder with `pipeline.finish()` (as `splatam run` does) and stays alive
+only as a last snapshot.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from splat_core.metrics import psnr
 
+from .live_preview import LivePreview
 from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, VersionArrays, empty_gaussians,
                        freeze_gaussians, frozen, make_thumbnail)
 
@@ -30,9 +32,11 @@ class SlamWorker(threading.Thread):
     map_interval_s: the Gaussian arrays are copied at most this often (and on every keyframe,
     pause and at the end); the other snapshot fields are refreshed after every frame.
     live_render: render the map at the tracked pose (colour, depth, silhouette) for the panel,
-    at most `live_max_width` pixels wide and at most every `live_interval_s` (the page shows
-    about two updates a second; a render per frame would only slow SLAM down). Between those
-    the panel keeps the last rendered frame, so image and render always belong together.
+    at most `live_max_width` pixels wide, in a LivePreview thread: at most every `live_interval_s`
+    and at most `live_duty` of one core (the page shows about two updates a second; a render per
+    frame, or one in the SLAM thread, would only slow SLAM down). Between those the panel keeps
+    the last rendered frame, so image and render always belong together; a pause and the run's
+    end show the last frame's render.
     prepare: called as `prepare(report)` in the thread before the first frame (the viewer compiles
     the CPU kernels there on a first run: app.warmup.KernelCompile.run); `report(text)` publishes
     `text` as the snapshot's message, which the page shows while there is no map.
@@ -41,7 +45,7 @@ class SlamWorker(threading.Thread):
     def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
                  render_backend: str = "auto", live_max_width: int = 320,
                  map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0,
-                 live_interval_s: float = 0.4, prepare=None):
+                 live_interval_s: float = 0.4, live_duty: float = 0.25, prepare=None):
         super().__init__(name="slam-worker", daemon=True)
         self.pipeline = pipeline
         self.prepare = prepare
@@ -50,7 +54,8 @@ class SlamWorker(threading.Thread):
         self.live_max_width = live_max_width
         self.map_interval_s = map_interval_s
         self.live_interval_s = live_interval_s
-        self._live_rendered_at = -1e9
+        self.live_duty = live_duty
+        self._preview: LivePreview | None = None      # made when the thread starts
         self.frame_delay_s = frame_delay_s
         self.out_dir = out_dir if out_dir is not None else getattr(pipeline, "out_dir", None)
         self.metrics: dict | None = None
@@ -123,6 +128,8 @@ class SlamWorker(threading.Thread):
 
     # ------------------------------------------------------------------ the thread
     def run(self) -> None:
+        if self.live_render:
+            self._preview = LivePreview(self._render_live, self.live_interval_s, self.live_duty)
         try:
             if self.prepare is not None:
                 self.prepare(lambda text: self._publish(message=text))
@@ -131,6 +138,7 @@ class SlamWorker(threading.Thread):
                 with self._cond:
                     if not self._stop_requested and self._paused and self._steps_requested == 0:
                         self._state = "paused"
+                        self._show_last_render()
                         self._publish(force_map=True)
                     while not self._stop_requested and self._paused and self._steps_requested == 0:
                         self._cond.wait(0.5)
@@ -146,6 +154,7 @@ class SlamWorker(threading.Thread):
                 if self.frame_delay_s:
                     time.sleep(self.frame_delay_s)
             stopped = self._stop_requested
+            self._show_last_render()
             self.metrics = self.pipeline.finish()
             self._state = "stopped" if stopped else "finished"
             message = f"run written to {self.out_dir}" if self.out_dir else "run complete"
@@ -155,31 +164,48 @@ class SlamWorker(threading.Thread):
             log.error("SLAM worker failed:\n%s", traceback.format_exc())
             self._state = "error"
             self._publish(force_map=False, message=f"SLAM failed: {type(e).__name__}: {e}")
+        finally:
+            if self._preview is not None:
+                self._preview.close()
+
+    def _show_last_render(self) -> None:
+        """The panel shows the newest frame's render now (a pause, the run's end)."""
+        if self._preview is not None:
+            self._preview.flush()
+            self._show(self._preview.latest())
+
+    def _show(self, live: LiveView | None) -> None:
+        """Make `live` the panel's frame; its render's PSNR goes into the plot at its own frame
+        (a render made in the preview thread arrives after later frames were processed)."""
+        if live is None:
+            return
+        self._live = live
+        frames, values = self._history["frame"], self._history["psnr"]
+        if live.psnr is not None:
+            for k in range(len(frames) - 1, -1, -1):
+                if frames[k] == live.frame_index:
+                    values[k] = float(live.psnr)
+                    break
 
     def _after_frame(self, r) -> None:
         pipe = self.pipeline
         self._last_frame_index = int(r.index)
         self._timestamps.append(float(r.timestamp))
-        now = time.monotonic()
-        due = self._live is None or r.is_keyframe or now - self._live_rendered_at >= self.live_interval_s \
-            or r.index + 1 == pipe.total
-        if not self.live_render:
-            live = LiveView(int(r.index), frozen(r.frame.color), frozen(r.frame.depth))
-        elif due:
-            live = self._render_live(r)
-            self._live_rendered_at = now
-        else:
-            live = None
-        self._live = live or self._live
         seconds = float(pipe.records[-1]["wall_seconds"])
         ate = pipe.ate_cm()
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
-                           ("seconds", seconds), ("psnr", live.psnr if live else None),
-                           ("num_gaussians", r.num_gaussians)):
+                           ("seconds", seconds), ("psnr", None), ("num_gaussians", r.num_gaussians)):
             self._history[key].append(np.nan if value is None else float(value))
+        if self._preview is None:
+            self._show(LiveView(int(r.index), frozen(r.frame.color), frozen(r.frame.depth)))
+        else:
+            self._preview.offer(r, pipe.map_version())
+            self._show(self._preview.latest())
         self._publish(force_map=bool(r.is_keyframe))
 
-    def _render_live(self, r) -> LiveView:
+    def _render_live(self, r, map_version) -> LiveView:
+        """(In the LivePreview thread.) `map_version`: a published map, never a tensor the mapper
+        is stepping."""
         frame = r.frame
         color, depth = frame.color, frame.depth
         try:
@@ -192,8 +218,8 @@ class SlamWorker(threading.Thread):
                 w = self.live_max_width
                 intr = intr.scaled(w, max(1, int(round(intr.height * w / intr.width))))
             renderer = Renderer(self.pipeline.config.near_plane, self.render_backend)
-            with torch.no_grad():   # the newest published map: never a tensor the mapper is stepping
-                out = renderer.render_visible(self.pipeline.map_version().gaussians, intr, r.w2c)
+            with torch.no_grad():
+                out = renderer.render_visible(map_version.gaussians, intr, r.w2c)
             rc, rd, ra = (t.detach().cpu().numpy() for t in out)
             import cv2
 

@@ -3,20 +3,23 @@
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
     python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off]
                                 [--browser-splats N] [--draw-while-running splats,points] --sizes '' --client-sizes ''
-    python benchmarks/viewer.py --sizes '' --client-sizes '' --idle-sizes 5000,100000 --idle-styles splats,points
+    python benchmarks/viewer.py --sizes '' --client-sizes '' --idle-sizes 5000,100000 --idle-styles splats,points [--idle-pages viewer,viser]
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
-viewer with a browser connected (SlamWorker + build_viewer + headless Chromium on the page, once
-for each --draw-while-running style), one after the other in this process; the median wall-clock
+viewer with a browser connected (SlamWorker + build_viewer on the server `splatam-viewer` starts,
+its page scripts included, + headless Chromium on the page, once for each --draw-while-running style), one after the other in this process; the median wall-clock
 s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
-Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer).
+Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer). --before DIR: the same
+measurement of another checkout's app and engine (a child process importing from DIR), each
+repeat right after this checkout's, as `slam_rate_before`.
 
 Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
 map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on every chunk),
 and adding one new 5k-Gaussian keyframe chunk.
 Client side: headless Debian Chromium with SOFTWARE WebGL (SwiftShader), measured by polling
 client.get_render until the splats show. --idle-sizes N,...: Chromium's CPU (cores) and frames
-per second over 20 s on a page that shows a static map of N Gaussians and receives nothing.
+per second over 20 s on a page that shows a static map of N Gaussians and receives nothing (the
+page as splatam-viewer serves it, or viser's own: --idle-pages).
 These figures are worst cases that say nothing about a real GPU; sizes above --client-sizes are
 skipped because SwiftShader needs minutes there.
 """
@@ -35,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+CODE = os.environ.get("SPLATAM_CODE") or str(Path(__file__).resolve().parent.parent)   # --before's child: DIR
+sys.path.insert(0, CODE)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
@@ -168,14 +172,17 @@ def browser_cpu_seconds() -> float:
     return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
 
 
-def idle_browser(n: int, style: str = "splats", seconds: float = 20.0) -> dict:
+def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: str = "viewer") -> dict:
     """Chromium's CPU and frame rate on a page showing a static map of n Gaussians drawn as `style`
-    (the viewer's splats or points), nothing changing."""
+    (the viewer's splats or points), nothing changing; `served`: "viewer" (the page as
+    splatam-viewer serves it, app/viewer/page_shim.py's scripts included) or "viser" (viser's own)."""
     import viser
 
+    from app.commands.viewer import start_server
     from app.viewer.scene import MapLayer
 
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+    server = start_server("127.0.0.1", 0) if served == "viewer" else viser.ViserServer(host="127.0.0.1", port=0,
+                                                                                        verbose=False)
     if n:
         layer = MapLayer(server, running_style=style)
         layer.update(dataclasses.replace(snapshot_of(freeze_gaussians(synthetic_map(n, 1).to_numpy()), [0]),
@@ -185,11 +192,15 @@ def idle_browser(n: int, style: str = "splats", seconds: float = 20.0) -> dict:
     try:
         with chromium_page(server, count_frames) as page:
             time.sleep(15)                                    # the splats arrive, sort and fade in
+            drawn = "(window.__splatamRedraw || {}).drawn"           # frames the view drew (page_shim.py)
             cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
+            drawn0 = page.evaluate(drawn)
             time.sleep(seconds)
             dt = time.monotonic() - t0
-            return dict(gaussians=n, style=style, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
-                        frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2))
+            drawn1 = page.evaluate(drawn)
+            return dict(gaussians=n, style=style, page=served, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
+                        frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2),
+                        drawn_per_second=None if drawn0 is None else round((drawn1 - drawn0) / dt, 2))
     finally:
         server.stop()
 
@@ -200,8 +211,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     way of drawing the map while SLAM runs (`styles`); each repeat runs headless, then each style."""
     import statistics
 
-    import viser
-
+    from app.commands.viewer import start_server
     from app.viewer import build_viewer
     from app.worker import SlamWorker
     from splat_core.config import load_config
@@ -216,6 +226,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     headless = []
     viewer = {style: [] for style in styles}
     browser_cpu = {style: [] for style in styles}
+    redraw = {style: None for style in styles}      # the page's draw counts (page_shim.py), if it has them
     for _ in range(repeats):
         pipe = pipeline()
         while pipe.step() is not None:
@@ -224,17 +235,18 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
         headless.append(median(pipe.records))
         for style in styles:
             pipe = pipeline()
-            server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+            server = start_server("127.0.0.1", 0)      # as splatam-viewer serves its page
             try:
                 worker = SlamWorker(pipe, start_paused=True)
                 app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
                                    draw_while_running=style)
-                with chromium_page(server):
+                with chromium_page(server) as page:
                     cpu0, t0 = browser_cpu_seconds(), time.monotonic()
                     worker.start()
                     worker.resume()
                     worker.join()
                     browser_cpu[style].append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
+                    redraw[style] = page.evaluate("() => window.__splatamRedraw || null")
                 viewer[style].append(median(pipe.records))
                 app.close()
             finally:
@@ -246,8 +258,51 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
                              viewer_s_per_frame=round(statistics.median(viewer[style]), 3),
                              viewer_fps_over_headless_fps=round(h / statistics.median(viewer[style]), 3),
                              browser_cpu_cores=round(statistics.median(browser_cpu[style]), 3),
+                             page_redraw=redraw[style],
                              runs=dict(viewer=viewer[style], browser_cpu_cores=browser_cpu[style]))
                         for style in styles])
+
+
+def merged(rates: list[dict]) -> dict:
+    """One slam_rate record from several one-repeat records: medians over them."""
+    import statistics
+
+    first = dict(rates[0])
+    heads = [h for r in rates for h in r["headless_runs"]]
+    h = statistics.median(heads)
+    views = []
+    for k, v in enumerate(first["viewer"]):
+        runs = [r["viewer"][k]["runs"]["viewer"][0] for r in rates]
+        cpu = [r["viewer"][k]["runs"]["browser_cpu_cores"][0] for r in rates]
+        views.append(dict(draw_while_running=v["draw_while_running"],
+                          viewer_s_per_frame=round(statistics.median(runs), 3),
+                          viewer_fps_over_headless_fps=round(h / statistics.median(runs), 3),
+                          browser_cpu_cores=round(statistics.median(cpu), 3),
+                          page_redraw=[r["viewer"][k].get("page_redraw") for r in rates],
+                          runs=dict(viewer=runs, browser_cpu_cores=cpu)))
+    first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views)
+    return first
+
+
+def slam_rate_of(code: Path, args) -> dict:
+    """slam_rate() of another checkout (one repeat), in a child process importing from `code`."""
+    import subprocess
+
+    cmd = [sys.executable, __file__, "--json", "--sizes", "", "--client-sizes", "", "--slam-frames",
+           str(args.slam_frames), "--engine", args.engine, "--config", args.config, "--map-updates",
+           args.map_updates, "--draw-while-running", args.draw_while_running]
+    if args.browser_splats is not None:
+        cmd += ["--browser-splats", str(args.browser_splats)]
+    done = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, SPLATAM_CODE=str(code)),
+                          check=True)
+    return json.loads(done.stdout)["slam_rate"]
+
+
+def commit_of(code: Path) -> str:
+    import subprocess
+
+    return subprocess.run(["git", "-C", str(code), "rev-parse", "--short", "HEAD"], capture_output=True,
+                          text=True).stdout.strip()
 
 
 def main() -> int:
@@ -260,6 +315,7 @@ def main() -> int:
     p.add_argument("--idle-sizes", default="",
                    help="also Chromium's CPU on a page showing a static map of these sizes, nothing changing")
     p.add_argument("--idle-styles", default="splats", help="... drawn as splats and/or points (comma-separated)")
+    p.add_argument("--idle-pages", default="viewer", help="... on the viewer's page and/or viser's own (viewer,viser)")
     p.add_argument("--slam-frames", type=int, default=0, help="also compare SLAM's rate headless and in the viewer")
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
@@ -268,6 +324,7 @@ def main() -> int:
                    help="the viewer's map update policy during the --slam-frames run")
     p.add_argument("--browser-splats", type=int, default=None,
                    help="the viewer's --browser-splats during the --slam-frames run")
+    p.add_argument("--before", default=None, help="another checkout: its SLAM rate in the viewer too (--slam-frames)")
     p.add_argument("--draw-while-running", default="splats",
                    help="the viewer's --draw-while-running during the --slam-frames run; 'splats,points' "
                         "runs the viewer once with each after every headless run")
@@ -295,14 +352,22 @@ def main() -> int:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
     if Path(CHROMIUM).exists():
-        out["idle_browser"] = [idle_browser(int(n), style) for n in args.idle_sizes.split(",") if n
-                               for style in args.idle_styles.split(",")]
+        out["idle_browser"] = [idle_browser(int(n), style, served=page) for n in args.idle_sizes.split(",") if n
+                               for style in args.idle_styles.split(",") for page in args.idle_pages.split(",")]
     if args.slam_frames:
-        out["slam_rate"] = slam_rate(args.slam_frames, args.engine, args.config, args.repeats,
-                                     args.map_updates, args.browser_splats,
-                                     tuple(args.draw_while_running.split(",")))
+        styles = tuple(args.draw_while_running.split(","))
+        ours, before = [], []
+        for _ in range(args.repeats):    # one repeat each in turn: both see the same load
+            ours.append(slam_rate(args.slam_frames, args.engine, args.config, 1, args.map_updates,
+                                  args.browser_splats, styles))
+            if args.before:
+                before.append(slam_rate_of(Path(args.before).resolve(), args))
+        out["slam_rate"] = merged(ours)
+        if before:
+            out["slam_rate_before"] = dict(merged(before), code=str(Path(args.before).resolve()),
+                                           commit=commit_of(Path(args.before)))
         if not args.json:
-            print(out["slam_rate"], flush=True)
+            print(out["slam_rate"], out.get("slam_rate_before", ""), flush=True)
     if args.json:
         print(json.dumps(out, indent=1), file=stdout)
     return 0

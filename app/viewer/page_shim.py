@@ -1,4 +1,5 @@
-"""A small script served with viser 1.1.1's page: gives its Gaussian-splat geometry a bounding sphere.
+"""Small scripts served with viser 1.1.1's page: a bounding sphere for its Gaussian-splat geometry,
+and fewer redraws where the browser draws WebGL in software.
 
 Why (issue 32, defect 8): the browser console logged `THREE.BufferGeometry.computeBoundingSphere():
 Computed radius is NaN` whenever a map update changed the number of splats or splat nodes
@@ -22,6 +23,21 @@ nothing. The mesh is drawn as before (a NaN sphere never culled it either); only
 A splat geometry is recognised by its shape (InstancedBufferGeometry, 2-component `position`,
 a `sortedIndex` attribute); anything else is left alone.
 
+Fewer redraws with software WebGL (issue 42: SLAM's rate with a browser on the same machine).
+viser's page draws on demand, but also once a second (a heartbeat) and for 250 ms after every
+scene message. Where WebGL is drawn by the CPU (SwiftShader, llvmpipe: no GPU, as on our 2-core
+test machine), one draw of a 100k-splat map takes about 0.3 s of a core, so a page that merely
+shows the map took half a core from SLAM (benchmarks/viewer.py). On such a page the second
+script lets the view draw at most one animation frame every REDRAW_GAP_MS, except while the
+person is using the page (pointer pressed or dragged, wheel, keys, touch: every frame then).
+A frame asked for within the gap is not drawn (the canvas keeps the last one); viser's own
+heartbeat asks for a frame every second, so the newest scene is drawn at most a second after the
+gap ends. How: the same devtools hook tells about every WebGLRenderer, whose `render` is wrapped;
+the first draw call of an animation frame decides for all its calls, and only draws to the
+canvas are held: a draw with a camera never used before (viser's get_render capture makes a new
+one each time) or to an off-screen target (environment maps) is never held. `?redraw=full` in the page's URL turns it off,
+`?redraw=slow` on (with a GPU too); `window.__splatamRedraw` says which and counts draws.
+
 How it is served: `serving()` wraps viser's `process_request` (as access.py does for tokens)
 and inserts the script after `<head>` of the page; `patch_page()` does the same for a written
 page (html_export.py). Only for the viser versions in SHIM_VISER_VERSIONS: another version
@@ -41,6 +57,8 @@ log = logging.getLogger(__name__)
 
 SHIM_VISER_VERSIONS = ("1.1.1",)
 MARKER = "splatam-viewer: splat bounds"
+REDRAW_GAP_MS = 2500       # a software-WebGL page draws its view at most this often...
+REDRAW_INPUT_MS = 1500     # ...unless the page had input this recently
 
 SPLAT_BOUNDS_JS = """(function () {
   /* %s (app/viewer/page_shim.py): viser's splat quad geometry has a 2-D position attribute,
@@ -66,6 +84,54 @@ SPLAT_BOUNDS_JS = """(function () {
   });
 })();""" % MARKER
 
+SOFTWARE_REDRAW_JS = """(function () {
+  /* splatam-viewer: software redraws (app/viewer/page_shim.py): with WebGL drawn by the CPU, the
+     view draws at most every %(gap)d ms unless the page is in use. */
+  var mode = new URLSearchParams(window.location.search).get("redraw");
+  function software() {
+    try {
+      var gl = document.createElement("canvas").getContext("webgl");
+      if (!gl) return false;
+      var info = gl.getExtension("WEBGL_debug_renderer_info");
+      var name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+      var lose = gl.getExtension("WEBGL_lose_context");
+      if (lose) lose.loseContext();
+      return /swiftshader|llvmpipe|softpipe|software/i.test(name);
+    } catch (e) { return false; }
+  }
+  var state = window.__splatamRedraw = {slow: mode === "slow" || (mode !== "full" && software()),
+                                         drawn: 0, held: 0};
+  if (!state.slow) return;
+  var input = -1e9;
+  function used() { input = performance.now(); }
+  ["pointerdown", "wheel", "keydown", "touchstart", "touchmove"].forEach(function (type) {
+    window.addEventListener(type, used, {capture: true, passive: true});
+  });
+  window.addEventListener("pointermove", function (e) { if (e.buttons) used(); }, {capture: true, passive: true});
+  var frame = 0, raf = window.requestAnimationFrame.bind(window);   /* which animation frame runs */
+  window.requestAnimationFrame = function (cb) { return raf(function (t) { frame = t; cb(t); }); };
+  var decided = null, hold = false, last = -1e9, seen = new WeakSet();
+  var hook = window.__THREE_DEVTOOLS__ || (window.__THREE_DEVTOOLS__ = new EventTarget());
+  hook.addEventListener("observe", function (event) {
+    var r = event.detail;
+    if (!r || r.isWebGLRenderer !== true || typeof r.render !== "function") return;
+    var render = r.render;
+    r.render = function (scene, camera) {
+      if (decided !== frame) {           /* the frame's first draw call decides for the whole frame */
+        decided = frame;
+        var now = performance.now();
+        hold = now - input >= %(input)d && now - last < %(gap)d;
+        if (hold) { state.held++; } else { last = now; state.drawn++; }
+      }
+      /* held: draws to the canvas with a camera seen before; a new camera (viser's get_render
+         capture makes one each time) and off-screen passes (environment maps) always draw */
+      if (hold && camera && seen.has(camera) && r.getRenderTarget() === null) return;
+      if (camera) seen.add(camera);
+      return render.apply(r, arguments);
+    };
+  });
+})();""" % {"gap": REDRAW_GAP_MS, "input": REDRAW_INPUT_MS}
+
 _serve_lock = threading.Lock()
 
 
@@ -82,10 +148,10 @@ def patch_page(html: str) -> str:
         return html
     head = html.find("<head>")
     if head < 0:
-        log.warning("viser's page has no <head>: served without the splat-bounds script")
+        log.warning("viser's page has no <head>: served without the page scripts")
         return html
     at = head + len("<head>")
-    return f"{html[:at]}<script>{SPLAT_BOUNDS_JS}</script>{html[at:]}"
+    return f"{html[:at]}<script>{SPLAT_BOUNDS_JS}\n{SOFTWARE_REDRAW_JS}</script>{html[at:]}"
 
 
 def wrap(inner):

@@ -120,3 +120,51 @@ def test_html_export_carries_the_script(tmp_path):
     if not page_shim.applies():
         pytest.skip("the shim is for another viser version")
     assert page_shim.MARKER in html_page(blob_map(50).to_numpy())
+
+
+def canvas_centre(page):
+    """The mean RGB of the middle of the page's canvas (what the person sees there)."""
+    import io
+
+    import numpy as np
+    from PIL import Image
+
+    img = np.asarray(Image.open(io.BytesIO(page.locator("canvas").first.screenshot())), np.float64)
+    h, w = img.shape[:2]
+    return img[h // 2 - 40:h // 2 + 40, w // 2 - 40:w // 2 + 40, :3].mean(axis=(0, 1))
+
+
+@pytest.mark.browser
+def test_software_webgl_page_holds_redraws_and_still_shows_the_last_change(browser):
+    """Headless Chromium draws WebGL in software (SwiftShader): the viewer's page holds its view's
+    draws to one per gap while nobody uses it, and the last of a burst of scene changes is still
+    drawn on the canvas; get_render captures are never held. `?redraw=full` draws every frame."""
+    from app.commands.viewer import start_server
+
+    server = start_server("127.0.0.1", 0)
+    try:
+        page, client = connect(browser, server)
+        state = page.evaluate("() => window.__splatamRedraw")
+        if not state["slow"]:
+            pytest.skip("this Chromium draws WebGL with a GPU: the page draws every frame there")
+        look(client, (0.0, 0.0, -3.0), (0.0, 0.0, 0.0))
+        box = server.scene.add_box("/box", color=(255, 0, 0), dimensions=(2.0, 2.0, 2.0))
+        wait_until(lambda: canvas_centre(page)[0] > canvas_centre(page)[1] + 80, 60, what="red box on the canvas")
+        held = page.evaluate("() => window.__splatamRedraw.held")
+        for k in range(12):                      # a burst of changes, each asking for 250 ms of frames
+            box.color = (255, 0, 0) if k % 2 else (0, 200, 0)
+            box.position = (0.0, 0.0, 0.01 * k)
+        box.color = (0, 200, 0)                  # the last change: green
+        wait_until(lambda: page.evaluate("() => window.__splatamRedraw.held") > held, 60, what="a held draw")
+        wait_until(lambda: canvas_centre(page)[1] > canvas_centre(page)[0] + 80, 60, what="green box on the canvas")
+        img = poll_render(client, lambda im: im[60:90, 80:120, 1].mean() > im[60:90, 80:120, 0].mean() + 60, 60,
+                          "get_render while draws are held")     # 150 x 200: the box in the middle
+        assert img.shape[:2] == (150, 200)
+        page.close()
+        full = browser.new_page(viewport={"width": 400, "height": 300})
+        full.goto(f"http://127.0.0.1:{server.get_port()}/?redraw=full")
+        full.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
+        assert full.evaluate("() => window.__splatamRedraw.slow") is False
+        full.close()
+    finally:
+        server.stop()
