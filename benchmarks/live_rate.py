@@ -5,6 +5,7 @@ invocation. Prints a markdown table (and, with --json, the rows).
     python benchmarks/live_rate.py                                   # synthetic + 7-Scenes (first 100 frames)
     python benchmarks/live_rate.py --sequences synthetic --max-frames 30
     python benchmarks/live_rate.py --max-frames 60 --no-realtime --before ../before   # + the live row of another checkout
+    python benchmarks/live_rate.py --sequences 7scenes_redkitchen_300,7scenes_redkitchen_600 --max-frames 600 --only-realtime
 
 --before DIR adds rows per sequence: the live engine on the `live` preset as that checkout (a
 `git worktree` of an earlier commit) runs it, right after this checkout's, and its real-time row
@@ -16,7 +17,9 @@ frame 0, the mean includes frame 0 and the final drain of the live mapper). Lag:
 the newest frame in the map version it was tracked against (live engine only). A real-time row
 processes only the frames it was handed (the others dropped): its ATE and PSNR are over those;
 `frames lost` is metrics.json's `frames_lost` (tracking lost: pose held, frame not mapped), and the
-share processed is frames over frames received.
+share processed is frames over frames received. keyframes: metrics.json `keyframes`, with the keyframes
+deferred while the mapper was behind (live.pace_keyframes; `live.keyframes_deferred`) beside them.
+--only-realtime: the real-time rows alone (--before adds its real-time row).
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ def run(input_path, preset: str, engine: str, realtime: str | None, out: Path, m
                 ate=m.get("ate_rmse_cm"), psnr=m.get("psnr"), lag_median=live.get("lag_frames_median"),
                 lag_max=live.get("lag_frames_max"), lag_kf_max=live.get("lag_keyframes_max"),
                 wait=live.get("tracker_wait_seconds"), keyframes=m.get("keyframes"), lost=m.get("frames_lost"),
+                deferred=live.get("keyframes_deferred"),
                 share=m.get("processed_share"))
 
 
@@ -68,6 +72,7 @@ def main() -> None:
     p.add_argument("--no-realtime", action="store_true", help="leave out the --realtime rows")
     p.add_argument("--no-sequential", action="store_true", help="leave out the sequential `cpu` rows (the "
                    "real-time targets compare with the all-frames live row)")
+    p.add_argument("--only-realtime", action="store_true", help="only the --realtime rows")
     p.add_argument("--before", default=None, help="another checkout: its live engine on `live` as a row too")
     p.add_argument("--work", default=None)
     p.add_argument("--json", action="store_true")
@@ -81,12 +86,13 @@ def main() -> None:
         path = "synthetic" if seq == "synthetic" else DATA / seq
         limit = args.max_frames if seq == "synthetic" else (args.max_frames or 100)
         runs = [r + (ROOT, "") for r in RUNS if not (args.no_realtime and r[2])
-                and not (args.no_sequential and r[1] == "sequential")]
+                and not (args.no_sequential and r[1] == "sequential") and not (args.only_realtime and not r[2])]
         if args.before:
             before = Path(args.before).resolve()
             commit = subprocess.run(["git", "-C", str(before), "rev-parse", "--short", "HEAD"], capture_output=True,
                                     text=True).stdout.strip()
-            runs.insert(1 if args.no_sequential else 2, ("live", "live", None, before, f" (before: {commit})"))
+            if not args.only_realtime:
+                runs.insert(1 if args.no_sequential else 2, ("live", "live", None, before, f" (before: {commit})"))
             if not args.no_realtime:
                 runs.append(("live", "live", "realtime", before, f" (before: {commit})"))
         for preset, engine, realtime, root, note in runs:
@@ -109,9 +115,10 @@ def main() -> None:
             frames += f" of {r['received']}" + (f" ({100 * r['share']:.0f} %)" if r["share"] is not None else "")
         rate = fmt(1.0 / r["median"], 1) if r["median"] else "–"
         lag = "–" if r["lag_median"] is None else f"{r['lag_median']:g} / {r['lag_max']}"
+        deferred = f" ({r['deferred']} deferred)" if r.get("deferred") else ""
         print(f"| {r['sequence']} | {r['preset']} | {r['engine']} | {frames} | {fmt(r['median'])} | {rate} | "
               f"{fmt(r['mean'])} | {fmt(r['ate'])} | {fmt(r['psnr'])} | {lag} | {fmt(r['lag_kf_max'])} | "
-              f"{fmt(r['keyframes'])} | {fmt(r['lost'])} |")
+              f"{fmt(r['keyframes'])}{deferred} | {fmt(r['lost'])} |")
     load = os.getloadavg()
     print(f"\nload average at end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
     if args.json:

@@ -18,6 +18,7 @@ KeyframeSelection = Literal["overlap", "random"]
 LiveMapping = Literal["newest", "keyframes"]
 KeyframeClock = Literal["capture", "processed"]
 LiveCheckpoint = Literal["drain", "published"]
+PaceSources = Literal["live", "all"]
 ALIGN_BACKENDS = get_args(AlignBackend)
 TRACKING_PIXELS = get_args(TrackingPixels)
 KEYFRAME_SELECTIONS = get_args(KeyframeSelection)
@@ -209,6 +210,24 @@ class LiveConfig:
                                            "keyframes it handed over are not in the map yet (null: never)",
                                            unit="keyframes", trades="smaller: a tracker that never runs far ahead "
                                            "of its map (less drift), slower when the mapper cannot keep up")
+    pace_keyframes: int | None = setting(None, "with wait false, a keyframe that falls due while this many "
+                                         "keyframes handed over are not in the map yet is deferred: the first "
+                                         "frame tracked after the mapper has caught up becomes the keyframe "
+                                         "instead, and the tracker never waits for the mapper (keyframes come "
+                                         "at the rate the mapper maps them; null: never deferred; pace_sources "
+                                         "says on which inputs)", unit="keyframes",
+                                         trades="set: a tracker that keeps the frame rate of a live source "
+                                         "(--realtime, a stream), fewer keyframes when the mapper is slower than "
+                                         "the keyframe interval")
+    pace_sources: PaceSources = setting("live", "where pace_keyframes applies: live sources only (a stream, "
+                                        "--realtime: a wait for the mapper drops frames) or every input (a "
+                                        "capture read frame by frame too, where waiting drops nothing)",
+                                        trades="all: no waits on a capture either, and fewer keyframes: SUN3D "
+                                        "3-4 dB lower PSNR (docs/benchmarks.md, Live rate)")
+    publish_densified: bool = setting(False, "the mapper publishes the map once more right after densifying from a "
+                                      "frame, before optimising over its window: the tracker finds the newly "
+                                      "seen parts a mapping step sooner", trades="true: one more copy of the map "
+                                      "per keyframe; the tracker may track against Gaussians not yet optimised")
     checkpoint: LiveCheckpoint = setting("drain", "a checkpoint of the live engine: drain (wait until every frame "
                                          "handed over is mapped, then save: the tracker stalls meanwhile) or "
                                          "published (the mapper saves its state after its next step, with the "

@@ -52,6 +52,8 @@ from .tracking import Tracker, TrackResult
 
 __all__ = ["SplaTAM", "FrameResult", "MapStats", "MapVersion", "snapshot_version"]
 
+NOT_KEYFRAME, KEYFRAME, DEFERRED = 0, 1, 2      # SplaTAM.keyframe_marks
+
 
 class SplaTAM:
     def __init__(self, config: Config, intrinsics: Intrinsics, device="cpu", dtype=torch.float32,
@@ -68,6 +70,9 @@ class SplaTAM:
         self.loop_closure = LoopClosure(config.loop_closure, config.seed) if config.loop_closure.enabled else None
         self.w2cs: list[np.ndarray] = []
         self.sources: list[int] = []             # each processed frame's capture frame index (frame.index)
+        # each tracked frame's keyframe decision, made when it was tracked (KEYFRAME, NOT_KEYFRAME, or
+        # DEFERRED: due, put off by the live engine while its mapper is behind; the next frame takes it)
+        self.keyframe_marks: list[int] = []
         self.stride = stride                      # capture frames between processed ones when none is dropped
         self.loops: list[LoopRecord] = []        # every loop closed, oldest first
         self.scene_radius: float | None = None
@@ -100,11 +105,27 @@ class SplaTAM:
         return len(self.w2cs)
 
     def is_keyframe(self, t: int) -> bool:
-        """Frame t becomes a keyframe: frame 0, the first frame at or past every n-th capture frame (at
-        the run's stride; with every frame processed: every n-th frame) and the second-to-last,
-        unless tracking was lost."""
-        return self.lost_tracking.reason(t) is None and is_keyframe_time(
-            t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t))
+        """Frame t is a keyframe: decided when it was tracked (keyframe_due, and not deferred)."""
+        return 0 <= t < len(self.keyframe_marks) and self.keyframe_marks[t] == KEYFRAME
+
+    def keyframe_due(self, t: int) -> bool:
+        """Frame t (tracked, its capture frame known) falls due as a keyframe: frame 0, the first frame
+        at or past every n-th capture frame (at the run's stride; with every frame processed: every
+        n-th frame) and the second-to-last; or a keyframe deferred before it is still owed. Never a
+        frame whose tracking was lost."""
+        owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
+        return self.lost_tracking.reason(t) is None and (owed or is_keyframe_time(
+            t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t)))
+
+    def _mark_keyframe(self, t: int, defer: bool) -> None:
+        """Decide frame t's keyframe (just tracked): a due one is kept, or owed to the next frames
+        when `defer` (the live engine's mapper is behind); a lost frame passes an owed one on."""
+        owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
+        if self.keyframe_due(t):
+            mark = DEFERRED if defer else KEYFRAME
+        else:
+            mark = DEFERRED if owed else NOT_KEYFRAME
+        self.keyframe_marks.append(mark)
 
     def capture_step(self, t: int) -> int:
         """Processed frame t's place in the capture in steps of the stride, from the first frame (t
@@ -136,10 +157,11 @@ class SplaTAM:
                            tracking_start=tracked.start if tracked else None, source_index=frame.index,
                            map_version=map_version)
 
-    def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None
-              ) -> tuple[int, np.ndarray, TrackResult | None]:
+    def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None,
+              defer_keyframe: bool = False) -> tuple[int, np.ndarray, TrackResult | None]:
         """The pose of the next frame against `gaussians`; appends it to the trajectory (a lost
-        frame: the last tracked pose, see relocalise.py)."""
+        frame: the last tracked pose, see relocalise.py) and decides whether it is a keyframe
+        (`defer_keyframe`: a due keyframe is owed to the next frame instead)."""
         t = len(self.w2cs)
         tracked, watch = None, self.lost_tracking
         if t == 0:
@@ -162,6 +184,7 @@ class SplaTAM:
             tracked, w2c = verdict.result, verdict.w2c
         self.w2cs.append(w2c)
         self.sources.append(int(frame.index))
+        self._mark_keyframe(t, defer_keyframe)
         return t, w2c, tracked
 
     def retract(self, t: int) -> None:
@@ -171,14 +194,19 @@ class SplaTAM:
             raise ValueError(f"retract: frame {t} is not the newest tracked frame ({len(self.w2cs) - 1})")
         self.w2cs.pop()
         self.sources.pop()
+        self.keyframe_marks.pop()
         self.lost_tracking.forget(t)
 
-    def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True) -> MapStats:
-        """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe."""
+    def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True,
+                  densified=None) -> MapStats:
+        """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe
+        (`densified`: called between densifying and optimising)."""
         if self.lost_tracking.reason(t) is not None:
             return MapStats()       # a lost frame's pose is not known: nothing of it goes into the map
         start = time.perf_counter()
         stats = MapStats(added=self.densify(frame.color, frame.depth, w2c, t))
+        if densified is not None:
+            densified()
         if optimise and t % self.config.mapping.map_every == 0:
             window = self.select_window(frame.color, frame.depth, w2c)
             stats.pruned = self.prune()
@@ -326,6 +354,7 @@ class SplaTAM:
         arrays.update(self.keyframes.to_arrays())
         arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
         arrays["source_indices"] = np.array(self.sources[:len(arrays["w2cs"])], dtype=np.int64)
+        arrays["keyframe_marks"] = np.array(self.keyframe_marks[:len(arrays["w2cs"])], dtype=np.int8)
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
         tracker_state, lost_state = self.tracking_state() if tracking_state is None else tracking_state
@@ -352,6 +381,12 @@ class SplaTAM:
             self.tracker.load_state(str(arrays["tracker_state"]))
         if "lost_state" in arrays:
             self.lost_tracking.load_state(str(arrays["lost_state"]))
+        if "keyframe_marks" in arrays:
+            self.keyframe_marks = [int(k) for k in arrays["keyframe_marks"]]
+        else:       # a checkpoint from before the decisions were kept: the rule, nothing deferred
+            self.keyframe_marks = []
+            for t in range(len(self.w2cs)):
+                self._mark_keyframe(t, defer=False)
         if self.loop_closure is not None and "loop_state" in arrays:
             self.loop_closure.load_state(str(arrays["loop_state"]))
             self.loops = [LoopRecord.from_dict(r) for r in json.loads(str(arrays.get("loops", "[]")))]

@@ -75,10 +75,11 @@ class SequentialEngine(SlamReads):
         return {}
 
 
-def make_engine(name: str, slam: SplaTAM, config: Config) -> Engine:
+def make_engine(name: str, slam: SplaTAM, config: Config, live_source: bool = False) -> Engine:
+    """`live_source`: the frames come from a stream or a real-time playback (live.pace_sources)."""
     if name == "sequential":
         return SequentialEngine(slam)
     if name == "live":
         from .live import LiveEngine
-        return LiveEngine(slam, config.live)
+        return LiveEngine(slam, config.live, live_source=live_source)
     raise InputError(f"--engine {name}: expected one of {', '.join(ENGINES)}")

@@ -28,6 +28,13 @@ frame 0: it tracks against whatever version is newest, and each mapper step maps
 and the newest frame of everything handed over meanwhile. `stats()` reports the lag (frame index
 minus the newest frame of the version it was tracked against), in frames and in keyframes.
 
+Keyframes paced by the mapper (`live.pace_keyframes`, on live sources with `live.pace_sources`
+live: a stream or a real-time playback, where a wait drops frames): a keyframe that falls due while
+that many keyframes handed over are unmapped is deferred (SplaTAM.keyframe_marks: owed by the
+frames after it until one is tracked with the mapper caught up), so the tracker never waits for
+the mapper after frame 0; `live.max_keyframe_lag`, a wait, bounds a capture read frame by frame,
+where waiting drops nothing and keeps every keyframe.
+
 Cores: under Numba's thread-safe "omp" layer the two threads run their kernels at the same time
 (parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
 stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measured on 2 cores,
@@ -53,7 +60,7 @@ import torch
 
 from ..config import LiveConfig
 from ..frame import Frame
-from ..slam import FrameResult, MapStats, MapVersion, SplaTAM
+from ..slam import DEFERRED, FrameResult, MapStats, MapVersion, SplaTAM
 from .slam_reads import SlamReads
 
 
@@ -68,8 +75,12 @@ def mapper_stream(device):
 
 
 class LiveEngine(SlamReads):
-    def __init__(self, slam: SplaTAM, config: LiveConfig):
+    def __init__(self, slam: SplaTAM, config: LiveConfig, live_source: bool = False):
         self.slam, self.config = slam, config
+        # live.pace_keyframes on this input (live.pace_sources): a due keyframe is deferred while the
+        # mapper is behind, instead of the tracker waiting (max_keyframe_lag)
+        self.paced = config.pace_keyframes is not None and not config.wait and \
+            (live_source or config.pace_sources == "all")
         self._cond = threading.Condition()
         self._pending: deque = deque()      # (t, frame, w2c) handed over, not yet mapped
         self._handed = -1                   # newest frame index handed over
@@ -127,7 +138,7 @@ class LiveEngine(SlamReads):
         t = self.slam.frames_tracked
         waited = self._wait_for_map(t)
         start = time.perf_counter()
-        version, t, w2c, tracked = self._track(frame, w2c_given)
+        version, t, w2c, tracked = self._track(frame, w2c_given, self._mapper_behind(t))
         lost = self.slam.lost_tracking.reason
         if self.config.wait and lost(t) is not None and any(lost(k) is None for k in range(version.frame_index + 1, t)):
             # Lost against a map that lacks frames tracked before this one: a jump into what those
@@ -136,7 +147,7 @@ class LiveEngine(SlamReads):
             self.slam.retract(t)
             waited += self._wait_for_map(t, max_lag=0)
             start = time.perf_counter()
-            version, t, w2c, tracked = self._track(frame, w2c_given)
+            version, t, w2c, tracked = self._track(frame, w2c_given, self._mapper_behind(t))
         if self.config.checkpoint == "published":
             with self._cond:
                 self._tracking_states[t] = self.slam.tracking_state()
@@ -155,12 +166,21 @@ class LiveEngine(SlamReads):
             self._cond.notify_all()
         return result
 
-    def _track(self, frame: Frame, w2c_given):
+    def _track(self, frame: Frame, w2c_given, defer_keyframe: bool = False):
         """(the map version, frame index, w2c, tracker result) of the next frame tracked against the
         newest published map, under the pose lock."""
         with self._poses:
             version = self.slam.latest_version()
-            return (version, *self.slam.track(frame, version.gaussians, w2c_given))
+            return (version, *self.slam.track(frame, version.gaussians, w2c_given, defer_keyframe))
+
+    def _mapper_behind(self, t: int) -> bool:
+        """live.pace_keyframes: frame t may not become a keyframe now (a due one is deferred to the
+        frames after it): that many keyframes handed over are not in the map yet. Never waits."""
+        if not self.paced or t == 0:
+            return False
+        with self._cond:
+            mapped = self._mapped
+        return sum(self.slam.is_keyframe(k) for k in range(mapped + 1, t)) >= self.config.pace_keyframes
 
     def map_version(self) -> MapVersion:
         """The newest version the mapper published (safe to read from any thread)."""
@@ -170,7 +190,11 @@ class LiveEngine(SlamReads):
         lags = dict(lag_frames_median=float(np.median(self.lags)), lag_frames_max=int(max(self.lags)),
                     lag_keyframes_median=float(np.median(self.lag_keyframes)),
                     lag_keyframes_max=int(max(self.lag_keyframes))) if self.lags else {}
+        marks = self.slam.keyframe_marks
+        deferred = dict(keyframes_deferred=sum(1 for k in range(1, len(marks)) if marks[k - 1] != DEFERRED == marks[k]),
+                        frames_keyframe_owed=sum(m == DEFERRED for m in marks))
         return dict(live=dict(max_lag=self.config.max_lag, wait=self.config.wait, mapper_steps=self.mapper_steps,
+                              pace_keyframes=self.config.pace_keyframes if self.paced else None, **deferred,
                               mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
                               gaussians_added=self.num_added, gaussians_pruned=self.num_pruned, **lags))
 
@@ -280,7 +304,10 @@ class LiveEngine(SlamReads):
             mapped_until, every = newest, False
         for t, frame, w2c in batch:
             if t == mapped_until or slam.is_keyframe(t):
-                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every))
+                # live.publish_densified: the keyframe's new Gaussians reach the tracker before its
+                # optimisation (the keyframe still counts as unmapped: pace_keyframes, drain)
+                early = (lambda t=t: slam.publish(t)) if self.config.publish_densified else None
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every), densified=early)
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
         # The batch's map is published before loop closure runs: the tracker does not wait while a

@@ -95,7 +95,7 @@ class Pipeline:
         self.intrinsics = source.intrinsics.scaled(*source_working_size(source, config))
         self.feed = FrameFeed(source, self.intrinsics, config, max_frames=max_frames, stride=stride)
         slam = SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total, stride=stride)
-        self.engine = make_engine(engine, slam, config)
+        self.engine = make_engine(engine, slam, config, live_source=self.streaming)
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []

@@ -192,7 +192,8 @@ def test_live_preset_optimises_every_keyframe_a_held_mapper_finds():
     as a starved one is) optimises each over its own window, oldest first, not only the newest (the
     others would enter the map densified but never optimised)."""
     config = load_config("live", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
-                                            "keyframes": {"every": 2}, "live": {"max_keyframe_lag": None},
+                                            "keyframes": {"every": 2},
+                                            "live": {"max_keyframe_lag": None, "pace_keyframes": None},
                                             "mapping": {"first_frame_iterations": 5, "iterations": 2},
                                             "loop_closure": {"enabled": False}})
     assert config.live.map == "keyframes"
@@ -205,9 +206,9 @@ def test_live_preset_optimises_every_keyframe_a_held_mapper_finds():
             gate.wait(120)
         mapped(batch)
 
-    def recorded(frame, w2c, t, optimise=True):
+    def recorded(frame, w2c, t, optimise=True, densified=None):
         calls.append((t, optimise))
-        return map_frame(frame, w2c, t, optimise=optimise)
+        return map_frame(frame, w2c, t, optimise=optimise, densified=densified)
     engine._map, engine.slam.map_frame = held, recorded
     try:
         for _ in range(7):
@@ -229,7 +230,7 @@ def test_live_tracker_waits_once_the_mapper_is_more_than_max_keyframe_lag_keyfra
                                             "keyframes": {"every": 2},
                                             "mapping": {"first_frame_iterations": 5, "iterations": 2},
                                             "loop_closure": {"enabled": False}})
-    assert config.live.max_keyframe_lag == 2
+    assert config.live.max_keyframe_lag == 2 and config.live.pace_sources == "live"   # a capture: not paced
     pipe = Pipeline(SyntheticSource(n_frames=12, width=80, height=60, seed=0), config, engine="live")
     engine, gate, blocked = pipe.engine, threading.Event(), threading.Event()
     mapped, wait = engine._map, engine._cond.wait
@@ -261,3 +262,182 @@ def test_live_tracker_waits_once_the_mapper_is_more_than_max_keyframe_lag_keyfra
     assert stepped == list(range(12))
     pipe.finish()
     assert max(engine.lag_keyframes) <= 2
+
+
+# ----------------------------------------------------------------------------- keyframes paced by the mapper
+
+def _paced_config(**overrides):
+    base = {"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100, "keyframes": {"every": 2},
+            "mapping": {"first_frame_iterations": 5, "iterations": 2}, "loop_closure": {"enabled": False}}
+    base.update(overrides)
+    return load_config("live", overrides=base)
+
+
+class _StepClock:
+    """A playback clock that only its `sleep` moves: every frame arrives just as it is asked for,
+    none is dropped, and nothing waits on wall time."""
+
+    def __init__(self):
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+def _played(n: int):
+    """The synthetic scene as a real-time playback (a live source), every frame handed over."""
+    from splat_core.io.playback import RealtimePlayback
+    clock = _StepClock()
+    return RealtimePlayback(SyntheticSource(n_frames=n, width=80, height=60, seed=0), 30.0, clock=clock,
+                            sleep=clock.sleep)
+
+
+def _held(engine, gate):
+    """The engine's mapper holds every step after frame 0's until `gate` is set."""
+    mapped = engine._map
+
+    def held(batch):
+        if batch[0][0] > 0:
+            gate.wait(120)
+        mapped(batch)
+    engine._map = held
+
+
+def test_live_preset_tracker_never_waits_for_a_held_mapper_and_defers_the_keyframes_it_falls_behind_on():
+    """`live.pace_keyframes` (the `live` preset): with the mapper held (slowed without limit) the
+    tracker tracks every frame without waiting after frame 0: a keyframe that falls due while a
+    keyframe handed over is unmapped is deferred (owed by the frames after it), so the keyframes
+    the tracker waited for without pacing (max_keyframe_lag) are never made."""
+    from splat_core.slam import DEFERRED, KEYFRAME, NOT_KEYFRAME
+    config = _paced_config()
+    assert config.live.wait is False and config.live.pace_keyframes is not None
+    assert config.live.pace_keyframes <= config.live.max_keyframe_lag
+    pipe = Pipeline(_played(14), config, engine="live")
+    engine, gate, ended = pipe.engine, threading.Event(), threading.Event()
+    assert pipe.streaming and engine.paced
+    _held(engine, gate)
+    wait, waits, stepped = engine._cond.wait, [], []
+
+    def watched_wait(timeout=None):      # the tracker's thread waiting for the map after frame 0's
+        if threading.current_thread() is tracker and engine._mapped >= 0:
+            waits.append(engine.slam.frames_tracked)
+            ended.set()
+        return wait(timeout)
+    engine._cond.wait = watched_wait
+
+    def track_all():
+        for _ in range(12):
+            stepped.append(pipe.step().index)
+        ended.set()
+    tracker = threading.Thread(target=track_all)
+    tracker.start()
+    try:
+        assert ended.wait(300)
+        assert waits == [] and stepped == list(range(12))      # all twelve tracked while the mapper was held
+        assert [r["source_index"] for r in pipe.records] == list(range(12))   # none dropped
+        assert engine._mapped == 0
+        marks = engine.slam.keyframe_marks
+        # frame 1 (due) is the only keyframe handed over; every later frame owes the one due at frame 3
+        assert marks == [KEYFRAME, KEYFRAME, NOT_KEYFRAME] + [DEFERRED] * 9
+        assert max(engine.lag_keyframes) == 1
+    finally:
+        gate.set()
+        tracker.join(300)
+    metrics = pipe.finish()
+    assert metrics["live"]["keyframes_deferred"] >= 1 and metrics["live"]["pace_keyframes"] == 1
+
+
+def test_a_deferred_keyframe_is_taken_once_the_mapper_has_caught_up_and_survives_a_resume(tmp_path):
+    """The keyframe owed when a checkpoint is saved is owed after the resume: the first frame tracked
+    after it becomes the keyframe, as the first frame after the mapper caught up does in a run."""
+    from splat_core.slam import DEFERRED, KEYFRAME, NOT_KEYFRAME
+    config = _paced_config(live={"checkpoint": "drain", "pace_sources": "all"})   # a capture, resumable
+    source = lambda: SyntheticSource(n_frames=12, width=80, height=60, seed=0)   # noqa: E731
+    pipe = Pipeline(source(), config, tmp_path, engine="live")
+    engine, gate = pipe.engine, threading.Event()
+    assert engine.paced and not pipe.streaming
+    _held(engine, gate)
+    try:
+        for _ in range(6):               # frames 0-5: frame 3's keyframe deferred (frame 1 held)
+            pipe.step()
+        assert engine.slam.keyframe_marks == [KEYFRAME, KEYFRAME, NOT_KEYFRAME, DEFERRED, DEFERRED, DEFERRED]
+    finally:
+        gate.set()
+    pipe.save_checkpoint()               # drains: frame 1 mapped, frames 2-5 settled (no keyframe among them)
+    assert engine._mapped == 5
+    pipe.engine.close()
+    resumed = Pipeline(source(), config, tmp_path, engine="live", resume=True)
+    slam = resumed.engine.slam
+    assert slam.keyframe_marks == [KEYFRAME, KEYFRAME, NOT_KEYFRAME, DEFERRED, DEFERRED, DEFERRED]
+    assert [kf.frame_index for kf in slam.keyframes] == [0, 1]
+    result = resumed.step()
+    assert result.index == 6 and result.is_keyframe          # the owed keyframe, taken at once
+    _run(resumed)
+    resumed.finish()
+    assert slam.keyframe_marks[6] == KEYFRAME and 6 in [kf.frame_index for kf in slam.keyframes]
+
+
+def test_keyframe_decisions_survive_a_state_round_trip_and_an_old_checkpoint_gets_the_rule(tmp_path):
+    """SplaTAM keeps each frame's keyframe decision (deferred included) in its state; a checkpoint
+    without them (made before they were kept) gets the keyframe rule, nothing deferred."""
+    from splat_core.slam import DEFERRED, KEYFRAME, NOT_KEYFRAME, SplaTAM
+    config = _paced_config()
+    src = SyntheticSource(n_frames=8, width=80, height=60, seed=0)
+    intr = src.intrinsics.scaled(80, 60)
+    slam = SplaTAM(config, intr, total_frames=8)
+    slam.keyframes.attach(tmp_path / "kf.bin")
+    for k in range(5):
+        frame = src.frame_at_size(k, 80, 60)
+        t, w2c, _ = slam.track(frame, slam.map.tensors(detach=True), defer_keyframe=k == 3)
+        slam.map_frame(frame, w2c, t)
+    assert slam.keyframe_marks == [KEYFRAME, KEYFRAME, NOT_KEYFRAME, DEFERRED, KEYFRAME]
+    assert [kf.frame_index for kf in slam.keyframes] == [0, 1, 4]
+    arrays = slam.state_arrays()
+    again = SplaTAM(config, intr, total_frames=8)
+    again.load_state_arrays(arrays, tmp_path / "kf.bin")
+    assert again.keyframe_marks == slam.keyframe_marks
+    del arrays["keyframe_marks"]
+    old = SplaTAM(config, intr, total_frames=8)
+    old.load_state_arrays(arrays, tmp_path / "kf.bin")
+    assert old.keyframe_marks == [KEYFRAME, KEYFRAME, NOT_KEYFRAME, KEYFRAME, NOT_KEYFRAME]
+
+
+def test_live_publish_densified_hands_the_tracker_a_keyframes_new_gaussians_before_its_optimisation():
+    """`live.publish_densified`: while a keyframe's optimisation is still running (held here), the
+    newest map version already holds the Gaussians densified from it; the keyframe still counts as
+    unmapped (the next due keyframe is deferred) until the step ends."""
+    from splat_core.slam import DEFERRED
+    config = _paced_config(live={"publish_densified": True})
+    pipe = Pipeline(_played(10), config, engine="live")
+    engine, slam = pipe.engine, pipe.engine.slam
+    entered, gate = threading.Event(), threading.Event()
+    optimise, densify, densified = slam.optimise, slam.densify, []
+
+    def counted(color, depth, w2c, t):
+        added = densify(color, depth, w2c, t)
+        densified.append((t, len(slam.map)))       # the map's size once frame t is densified
+        return added
+
+    def held(window, first=False, iterations=None):
+        if not first:                    # a keyframe after frame 0: hold its optimisation
+            entered.set()
+            gate.wait(120)
+        return optimise(window, first=first, iterations=iterations)
+    slam.optimise, slam.densify = held, counted
+    try:
+        for _ in range(2):               # frame 1: a keyframe (keyframes.every 2)
+            pipe.step()
+        assert entered.wait(120)         # frame 1's optimisation has begun, its densification is done
+        version = pipe.map_version()
+        assert version.frame_index == 1 and engine._mapped == 0
+        assert densified[-1] == (1, len(version))       # frame 1's densified map, before pruning and optimising
+        for _ in range(2):               # frame 3 falls due while frame 1 is unmapped: deferred
+            pipe.step()
+        assert slam.keyframe_marks[3] == DEFERRED
+    finally:
+        gate.set()
+    pipe.finish()
+    assert engine._mapped == 3 and slam.is_keyframe(1)
