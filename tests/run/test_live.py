@@ -72,7 +72,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
                 if live.engine.slam.latest_version() is None:
                     continue
                 version = live.map_version()
-                seen.setdefault(version.number, (version, version.gaussians.means.sum().item()))
+                seen.setdefault(version.number, (version, version.gaussians.means.clone()))
                 with torch.no_grad():
                     out = render(version.gaussians, intr, np.eye(4), near=live.config.near_plane)
                 assert torch.isfinite(out.color).all()
@@ -89,8 +89,8 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
         thread.join()
     assert not errors, errors
     assert len(seen) >= 3, "the viewer saw the map grow version by version"
-    for number, (version, checksum) in seen.items():   # nothing changed a published version
-        assert version.gaussians.means.sum().item() == checksum, number
+    for number, (version, first_seen) in seen.items():   # nothing changed a published version
+        assert torch.equal(version.gaussians.means, first_seen), number   # exact: a float sum's order varies
     assert metrics["engine"] == "live" and metrics["live"]["mapper_steps"] >= 2
     assert live.ate_cm() <= 1.5 * sequential.ate_cm() + 0.05, (live.ate_cm(), sequential.ate_cm())
     assert len(live.engine.slam.keyframes) == len(sequential.engine.slam.keyframes)
