@@ -206,6 +206,14 @@ class LiveConfig:
                                "keyframes: each keyframe optimised over its own window; between keyframes the "
                                "mapper idles and leaves the cores to the tracker; the `live` preset)",
                                trades="keyframes: a faster tracker, a map that is a keyframe interval behind")
+    densify_between: bool = setting(False, "with map keyframes, a mapper step whose newest frame is not a keyframe "
+                                    "still densifies from that frame (new Gaussians where the map lacks what it "
+                                    "sees; no optimisation) and publishes the map, so the tracker's next frames "
+                                    "find what came into view since the last keyframe (live.py)",
+                                    trades="false: the tracker aligns against a map without what came into view "
+                                    "since the last keyframe (the corridor's tracking failed: docs/benchmarks.md, "
+                                    "Long runs); true: a render per mapper step more, and the tracker's reused "
+                                    "render is renewed with each version")
     max_keyframe_lag: int | None = setting(None, "with wait false, the tracker waits while more than this many "
                                            "keyframes it handed over are not in the map yet (null: never)",
                                            unit="keyframes", trades="smaller: a tracker that never runs far ahead "

@@ -12,7 +12,8 @@ The tracker (the thread that calls `process`: the pipeline's, the viewer's worke
 against the newest `MapVersion` the mapper published and hands (frame, pose) to the mapper. The
 mapper takes everything handed over since its last step, and in one step:
     densifies from each keyframe among them and from the newest frame (the others add little that
-    the newest does not: they sit between the two),
+    the newest does not: they sit between the two; with `live.map: keyframes` the newest frame only
+    densifies, `live.densify_between`),
     optimises the map over the newest frame's window (current + latest keyframe + overlapping
     keyframes, SplaTAM's window), prunes, and keeps the keyframes,
     publishes a new MapVersion (a copy: nothing renders a tensor the mapper is stepping).
@@ -93,6 +94,7 @@ class LiveEngine(SlamReads):
         self.lags: list[int] = []           # per tracked frame: its index minus the newest frame of its map version
         self.lag_keyframes: list[int] = []  # ... the keyframes between them (tracked, not yet in that version)
         self.num_added = self.num_pruned = 0
+        self.densified_between = 0          # frames between keyframes densified from (live.densify_between)
         # Loop closure (splat_core/loop/) runs in this mapper thread after a keyframe; while it runs the
         # tracker does not wait for the map (a loop never stalls tracking), and its pose edits happen
         # under _poses, which the tracker holds while it tracks one frame; the moved map is published
@@ -196,7 +198,8 @@ class LiveEngine(SlamReads):
         return dict(live=dict(max_lag=self.config.max_lag, wait=self.config.wait, mapper_steps=self.mapper_steps,
                               pace_keyframes=self.config.pace_keyframes if self.paced else None, **deferred,
                               mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
-                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned, **lags))
+                              gaussians_added=self.num_added, gaussians_pruned=self.num_pruned,
+                              densified_between=self.densified_between, **lags))
 
     def _wait_for_map(self, t: int, max_lag: int | None = None) -> float:
         """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
@@ -287,10 +290,14 @@ class LiveEngine(SlamReads):
         start = time.perf_counter()
         slam = self.slam
         newest = self._batch_newest = batch[-1][0]
+        between = None
         if self.config.map == "keyframes" and not self.config.wait:
             # Only keyframes are mapped (frame 0 is one); a batch without one settles at no cost.
+            between = batch[-1] if self.config.densify_between and not slam.is_keyframe(newest) else None
             batch = [b for b in batch if slam.is_keyframe(b[0])]
             if not batch:
+                if between is not None and self._densify_between(*between):
+                    self._published(newest, newest)
                 with self._cond:
                     self._mapped = self._settled = newest
                     self._cond.notify_all()
@@ -310,6 +317,8 @@ class LiveEngine(SlamReads):
                 stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every), densified=early)
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
+        if every and between is not None and self._densify_between(*between):
+            mapped_until = newest
         # The batch's map is published before loop closure runs: the tracker does not wait while a
         # loop closes, so it must find this batch's frames in the map (the first frame's above all).
         self._published(newest, mapped_until)
@@ -328,6 +337,18 @@ class LiveEngine(SlamReads):
             self._settled = newest          # its loop closure done too: drain() may return
             self._cond.notify_all()
         self._snapshot_if_wanted(newest)
+
+    def _densify_between(self, t: int, frame, w2c) -> bool:
+        """live.densify_between: new Gaussians from frame t, a frame between keyframes (no optimisation;
+        a lost frame adds nothing). Without them the tracker aligns the next frames against a map that
+        lacks what came into view since the last keyframe, and the alignment's pose and the tracking
+        loss both drift toward what the map holds: on the synthetic corridor, looking down it, each
+        frame 0.3-2 cm off from a perfect prediction, against 0.1 cm with these Gaussians
+        (docs/benchmarks.md, "Long runs"). True when any were added."""
+        stats = self.slam.map_frame(frame, w2c, t, optimise=False)
+        self.num_added += stats.added
+        self.densified_between += 1
+        return stats.added > 0
 
     def _published(self, newest: int, mapped_until: int | None = None) -> None:
         """Publish the map; `mapped_until`: the newest frame in it (live.map keyframes: the newest
