@@ -41,6 +41,10 @@ class SlamReads:
         """The map after drain() rendered at w2c (no gradients): evaluation."""
         return self.slam.render_view(w2c)
 
+    def finish_map(self) -> dict | None:
+        """The end-of-run steps on the map (after drain() and close()): mapping.final_color_fit."""
+        return self.slam.final_color_fit()
+
     def attach_keyframes(self, path) -> None:
         self.slam.keyframes.attach(path)
 
