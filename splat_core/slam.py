@@ -282,14 +282,6 @@ class SplaTAM:
         with torch.no_grad():
             return self.renderer.render_visible(self.map.tensors(detach=True), self.intrinsics, w2c)
 
-    def final_color_fit(self) -> dict | None:
-        """mapping.final_color_fit, after the last frame: the map's colours get the gain and offset
-        per channel that best fit its renders to every keyframe (color_fit.py). None: off or no keyframes."""
-        if not self.config.mapping.final_color_fit or not len(self.keyframes) or not len(self.map):
-            return None
-        from .color_fit import fit_map_colors
-        return fit_map_colors(self.map, list(self.keyframes), self.intrinsics, self.renderer)
-
     def keyframe_view(self, kf: Keyframe) -> View:
         return View(self._tensor(kf.color), self._tensor(kf.depth), kf.w2c)
 
