@@ -286,7 +286,12 @@ class Pipeline:
         if self.records and self._last_step is not None:
             self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
             self._last_step = None
+        start = time.perf_counter()
+        color_fit = self.engine.finish_map()     # timed apart from the frames' wall time
+        fit_seconds = time.perf_counter() - start
         result = self.metrics()
+        if color_fit is not None:
+            result["final_color_fit"] = dict(color_fit, seconds=fit_seconds)
         if self.folder is not None:
             comments = {r["index"]: f"tracking lost at frame {r['index']} (capture frame {r['source_index']}): "
                         f"{r['reason']}; the pose below is not tracked (interpolated between the tracked frames on "
