@@ -19,6 +19,7 @@ import torch
 
 from .camera import Intrinsics, backproject, invert_pose
 from .config import DensifyConfig
+from .frame import resize_to
 from .gaussians import GaussianMap
 
 
@@ -65,3 +66,41 @@ def gaussians_from_pixels(color: np.ndarray, depth: np.ndarray, mask: np.ndarray
     radii = depth[mask].astype(np.float64) / intr.mean_focal
     return GaussianMap.from_points(pts_world, color[mask], radii, frame_index, isotropic=isotropic,
                                    opacity=config.initial_opacity, device=device, dtype=dtype)
+
+
+def frame_gaussians(gmap: GaussianMap, renderer, intr: Intrinsics, color, depth, w2c, t: int, config,
+                    device="cpu", dtype=torch.float32) -> GaussianMap:
+    """The new Gaussians frame t adds at pose w2c (SplaTAM's densification, at `intr`): every pixel
+    with depth for the first frame or an empty map, else where the map's render (`renderer`) leaves
+    the pixel uncovered or sees new geometry in front (`new_pixel_mask`); with `densify.hole_fill`,
+    also pixels without depth, at the farthest valid depth nearby; with `mapping.exposure`, colours
+    brought to the map's exposure first. `config`: the run's Config. The caller appends them."""
+    color_d, depth_d = resize_to(color, intr, False), resize_to(depth, intr, True)
+    silhouette = None
+    if t == 0 or len(gmap) == 0:
+        mask = depth_d > 0
+    else:
+        with torch.no_grad():
+            out = renderer.render_visible(gmap, intr, w2c)
+        silhouette = out.alpha.cpu().numpy()
+        mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), silhouette, config.densify)
+        if config.mapping.exposure:
+            color_d = unexposed(color_d, out, config.mapping.exposure_prior)
+    if config.densify.hole_fill > 0:
+        filled = filled_depth(depth_d, config.densify.hole_fill)
+        mask = mask | hole_pixel_mask(depth_d, filled, silhouette, config.densify)
+        depth_d = filled
+    return gaussians_from_pixels(color_d, depth_d, mask, intr, w2c, t, config.densify, config.isotropic,
+                                 device=device, dtype=dtype)
+
+
+def unexposed(color: np.ndarray, rendered, prior: float) -> np.ndarray:
+    """The frame's colours brought to the map's exposure (mapping.exposure): the inverse of the
+    frame's gain and offset fitted against the map's render where it covers the frame, so new
+    Gaussians start at the exposure the map keeps."""
+    from .mapping import exposure_fit
+
+    observed = torch.as_tensor(color, dtype=rendered.color.dtype, device=rendered.color.device)
+    covered = rendered.alpha.reshape(observed.shape[:2]) > 0.5
+    gain, offset = exposure_fit(rendered.color, observed, covered, prior)
+    return ((observed - offset) / gain.clamp(min=0.1)).clamp(0, 1).cpu().numpy().astype(color.dtype)

@@ -9,20 +9,17 @@
     optimise_map(map, window)                   L1 + SSIM (pruning again every 20 iterations)
     keyframes.add(frame, w2c)                   every n-th capture frame (at the run's stride)
 
-Frames dropped by a real-time playback or a live stream make the processed frames' capture
-frames uneven (3 apart, then 11): SplaTAM keeps each processed frame's capture frame index
-(`frame.index`) and measures the motion model's time and the keyframe interval in capture frames
-(at the run's `stride`), not in processed frames. With every frame processed the two are the same
-and so are the results, bit for bit.
+With frames dropped (real-time playback, a live stream) the motion model's time and the keyframe
+interval count capture frames (`frame.index`, at the run's `stride`); with none dropped, the same.
 
 `process` runs the two halves in order (the sequential engine: deterministic, resumable bit for
 bit). The live engine (run/live.py) calls `track` and `map_frame` from two threads instead; both
 read the map through `MapVersion`s that `publish` makes, never the tensors the mapper is stepping.
 
-SplaTAM is the only writer of its state (map, poses, keyframes, loops). Its collaborators get a
-read-only view and return results that it applies: lost tracking a Verdict (relocalise.py), loop
-closure a LoopFound with its Correction (loop/). An engine chooses the locking around applying a
-correction (`close_loops(t, guard)`). `state_arrays` / `load_state_arrays` save and load all of it.
+SplaTAM is the only writer of its state (map, poses, keyframes, loops); collaborators return
+results it applies: lost tracking a Verdict (relocalise.py), loop closure a LoopFound with its
+Correction (loop/; the engine chooses the locking: `close_loops(t, guard)`), densification new
+Gaussians (densify.py). `state_arrays` / `load_state_arrays` save and load all of it.
 """
 
 from __future__ import annotations
@@ -38,13 +35,13 @@ import torch
 
 from .camera import Intrinsics, invert_pose, predict_constant_velocity
 from .config import Config
-from .densify import filled_depth, gaussians_from_pixels, hole_pixel_mask, new_pixel_mask
-from .frame import Frame, resize_to
+from .densify import frame_gaussians
+from .frame import Frame
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
 from .loop import LoopClosure, anchors
 from .loop.records import Correction, LoopRecord
-from .mapping import View, exposure_fit, optimise_map, prune_mask
+from .mapping import View, optimise_map, prune_mask
 from .relocalise import LostTracking
 from .render import Renderer
 from .slam_state import FrameResult, MapStats, MapVersion, SlamView, snapshot_version
@@ -109,23 +106,18 @@ class SplaTAM:
         return 0 <= t < len(self.keyframe_marks) and self.keyframe_marks[t] == KEYFRAME
 
     def keyframe_due(self, t: int) -> bool:
-        """Frame t (tracked, its capture frame known) falls due as a keyframe: frame 0, the first frame
-        at or past every n-th capture frame (at the run's stride; with every frame processed: every
-        n-th frame) and the second-to-last; or a keyframe deferred before it is still owed. Never a
-        frame whose tracking was lost."""
+        """Frame t (tracked, not lost) falls due as a keyframe: frame 0, the first frame at or past every
+        n-th capture frame (at the run's stride) and the second-to-last; or one deferred before is owed."""
         owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
         return self.lost_tracking.reason(t) is None and (owed or is_keyframe_time(
             t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t)))
 
     def _mark_keyframe(self, t: int, defer: bool) -> None:
-        """Decide frame t's keyframe (just tracked): a due one is kept, or owed to the next frames
-        when `defer` (the live engine's mapper is behind); a lost frame passes an owed one on."""
+        """Frame t's decision: a due keyframe kept, or owed on when `defer` (the live mapper is behind)
+        or t was lost."""
         owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
-        if self.keyframe_due(t):
-            mark = DEFERRED if defer else KEYFRAME
-        else:
-            mark = DEFERRED if owed else NOT_KEYFRAME
-        self.keyframe_marks.append(mark)
+        due = self.keyframe_due(t)
+        self.keyframe_marks.append((DEFERRED if defer else KEYFRAME) if due else DEFERRED if owed else NOT_KEYFRAME)
 
     def capture_step(self, t: int) -> int:
         """Processed frame t's place in the capture in steps of the stride, from the first frame (t
@@ -267,35 +259,11 @@ class SplaTAM:
 
     # ------------------------------------------------------------------ steps
     def densify(self, color, depth, w2c, t) -> int:
-        intr = self.densify_intrinsics
-        color_d, depth_d = resize_to(color, intr, False), resize_to(depth, intr, True)
-        silhouette = None
-        if t == 0 or len(self.map) == 0:
-            mask = depth_d > 0
-        else:
-            with torch.no_grad():
-                out = self.renderer.render_visible(self.map, intr, w2c)
-            silhouette = out.alpha.cpu().numpy()
-            mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), silhouette, self.config.densify)
-            if self.config.mapping.exposure:
-                color_d = self.unexposed(color_d, out)
-        if self.config.densify.hole_fill > 0:
-            filled = filled_depth(depth_d, self.config.densify.hole_fill)
-            mask = mask | hole_pixel_mask(depth_d, filled, silhouette, self.config.densify)
-            depth_d = filled
-        new = gaussians_from_pixels(color_d, depth_d, mask, intr, w2c, t, self.config.densify,
-                                    self.config.isotropic, device=self.device, dtype=self.dtype)
+        """Add Gaussians where frame t sees what the map lacks (densify.py, `frame_gaussians`)."""
+        new = frame_gaussians(self.map, self.renderer, self.densify_intrinsics, color, depth, w2c, t, self.config,
+                              device=self.device, dtype=self.dtype)
         self.map.append(new)
         return len(new)
-
-    def unexposed(self, color: np.ndarray, rendered) -> np.ndarray:
-        """The frame's colours brought to the map's exposure (mapping.exposure): the inverse of the
-        frame's gain and offset fitted against the map's render where it covers the frame, so new
-        Gaussians start at the exposure the map keeps."""
-        observed = torch.as_tensor(color, dtype=rendered.color.dtype, device=rendered.color.device)
-        covered = rendered.alpha.reshape(observed.shape[:2]) > 0.5
-        gain, offset = exposure_fit(rendered.color, observed, covered, self.config.mapping.exposure_prior)
-        return ((observed - offset) / gain.clamp(min=0.1)).clamp(0, 1).cpu().numpy().astype(color.dtype)
 
     def select_window(self, color, depth, w2c) -> list[View]:
         """The current view plus the latest keyframe and the keyframes that overlap it most."""

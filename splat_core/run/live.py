@@ -5,9 +5,7 @@
     engine.drain()                      # wait until everything handed over is mapped (checkpoints, the end)
     engine.close()
 
-It offers the same interface as the sequential engine (engines.py), so the pipeline never asks
-which one it drives.
-
+Same interface as the sequential engine (engines.py).
 The tracker (the thread that calls `process`: the pipeline's, the viewer's worker) tracks each frame
 against the newest `MapVersion` the mapper published and hands (frame, pose) to the mapper. The
 mapper takes everything handed over since its last step, and in one step:
@@ -18,32 +16,18 @@ mapper takes everything handed over since its last step, and in one step:
     keyframes, SplaTAM's window), prunes, and keeps the keyframes,
     publishes a new MapVersion (a copy: nothing renders a tensor the mapper is stepping).
 
-Hand-over policy (how far tracking may run ahead): frame 0 is mapped before frame 1 is tracked
-(there is nothing to track against before); after that the tracker waits while the newest
-published version is more than `live.max_lag` frames behind the frame it is about to track.
-So a fast tracker is never more than max_lag frames beyond the map, and on a machine where
-mapping is slower than tracking the mapper covers max_lag + 1 frames per step. Waiting is the
-only coupling: the tracker never blocks on the mapper's work otherwise, and the mapper never
-waits for the tracker. With `live.wait: false` (the `live` preset) the tracker never waits after
-frame 0: it tracks against whatever version is newest, and each mapper step maps the keyframes
-and the newest frame of everything handed over meanwhile. `stats()` reports the lag (frame index
-minus the newest frame of the version it was tracked against), in frames and in keyframes.
+Hand-over policy (docs/engines.md has the measurements): frame 0 is mapped before frame 1 is
+tracked; after that the tracker waits while the newest published version is more than
+`live.max_lag` frames behind the frame it is about to track. With `live.wait: false` (the `live`
+preset) it never waits after frame 0 but for `live.max_keyframe_lag` (keyframes handed over and
+unmapped) on a capture read frame by frame; on a live source (stream, real-time playback) a
+keyframe falling due meanwhile is deferred instead (`live.pace_keyframes`; SplaTAM.keyframe_marks:
+owed by the next frames until one is tracked with the mapper caught up). Waiting is the only
+coupling. `stats()` reports the lag in frames and keyframes.
 
-Keyframes paced by the mapper (`live.pace_keyframes`, on live sources with `live.pace_sources`
-live: a stream or a real-time playback, where a wait drops frames): a keyframe that falls due while
-that many keyframes handed over are unmapped is deferred (SplaTAM.keyframe_marks: owed by the
-frames after it until one is tracked with the mapper caught up), so the tracker never waits for
-the mapper after frame 0; `live.max_keyframe_lag`, a wait, bounds a capture read frame by frame,
-where waiting drops nothing and keeps every keyframe.
-
-Cores: under Numba's thread-safe "omp" layer the two threads run their kernels at the same time
-(parallel.numba_lock), each over all cores; the cores that one thread leaves idle in its serial
-stretches (sorting, Python, the Gauss-Newton solve) do the other's work. Measured on 2 cores,
-giving each thread half the cores (Numba's threads are per thread) or halving torch's threads
-was slower (docs/engines.md).
-
-GPU: the mapper runs on its own CUDA stream (mapper_stream); a published version carries an event
-that readers' streams wait for (MapVersion.wait_ready), so neither thread's host waits for the other's kernels.
+Cores: under Numba's thread-safe "omp" layer both threads run kernels at once (parallel.numba_lock),
+each over all cores. GPU: the mapper runs on its own CUDA stream (mapper_stream); a published
+version carries an event that readers' streams wait for (MapVersion.wait_ready).
 
 Results are not bitwise reproducible (which frames a mapper step covers depends on timing); the
 sequential engine (SplaTAM.process) is the deterministic reference.

@@ -8,6 +8,7 @@ import torch
 
 from splat_core.camera import Intrinsics
 from splat_core.config import (MappingConfig, load_config)
+from splat_core.densify import unexposed
 from splat_core.gaussians import GaussianMap
 from splat_core.mapping import View, frustum_mask, optimise_map, prune_mask
 from splat_core.render import render
@@ -241,7 +242,7 @@ def test_densify_under_mapping_exposure_brings_new_colours_to_the_maps_exposure(
         out = Renderer().render(m, f.intrinsics, np.eye(4))
     covered = out.alpha.numpy() > 0.5
     dark = (f.color * 0.7).astype(np.float32)
-    restored = slam.unexposed(dark, out)
+    restored = unexposed(dark, out, slam.config.mapping.exposure_prior)
     rendered = out.color.numpy()
     assert np.abs(restored - rendered)[covered].mean() < 0.5 * np.abs(dark - rendered)[covered].mean()
     assert abs(float(restored[covered].mean()) - float(rendered[covered].mean())) < 0.02
