@@ -196,7 +196,7 @@ def test_live_preset_optimises_every_keyframe_a_held_mapper_finds():
                                             "live": {"max_keyframe_lag": None, "pace_keyframes": None},
                                             "mapping": {"first_frame_iterations": 5, "iterations": 2},
                                             "loop_closure": {"enabled": False}})
-    assert config.live.map == "keyframes"
+    assert config.live.map == "keyframes" and load_config("live").live.densify_between
     pipe = Pipeline(SyntheticSource(n_frames=8, width=80, height=60, seed=0), config, engine="live")
     engine, gate = pipe.engine, threading.Event()
     mapped, map_frame, calls = engine._map, engine.slam.map_frame, []
@@ -448,8 +448,7 @@ def test_live_publish_densified_hands_the_tracker_a_keyframes_new_gaussians_befo
 
 @pytest.mark.parametrize("between", [True, False])
 def test_live_keyframe_mapper_densifies_from_frames_between_keyframes(between):
-    """`live.map: keyframes` with `live.densify_between` (off by default: not yet measured on the real
-    sequences): a mapper step whose
+    """`live.map: keyframes` with `live.densify_between` (the `live` preset): a mapper step whose
     newest frame is not a keyframe adds Gaussians where that frame sees what the map lacks and
     publishes them, so the tracker's next frames find what came into view since the last keyframe.
     Without them the corridor's tracking failed where the camera looks down it (frames 240-280:
@@ -458,7 +457,7 @@ def test_live_keyframe_mapper_densifies_from_frames_between_keyframes(between):
     config = load_config("live", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
                                             "mapping": {"first_frame_iterations": 5, "iterations": 2},
                                             "loop_closure": {"enabled": False}, "live": {"densify_between": between}})
-    assert config.live.map == "keyframes"
+    assert config.live.map == "keyframes" and load_config("live").live.densify_between
     # 6 cm a frame down the corridor, panning: walls and objects come into view every frame
     pipe = Pipeline(CorridorSource(n_frames=8, width=80, height=60, speed=4.0), config, engine="live")
     engine, versions = pipe.engine, []
