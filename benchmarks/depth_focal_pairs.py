@@ -39,30 +39,12 @@ from common import DATA, machine_line  # noqa: E402
 REFERENCES = {"kinectfusion": "groundtruth.txt", "sfm": "groundtruth_sfm.txt"}
 
 
-def depth_cloud(depth: np.ndarray, intr, voxel: float = 0.01):
-    """Open3D point cloud of a depth image (metres; 0 invalid) back-projected at `intr`, with normals."""
-    import open3d as o3d
-
-    from splat_core.camera import backproject
-
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(backproject(depth, intr)[depth > 0]))
-    pc = pc.voxel_down_sample(voxel)
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
-    return pc
-
-
 def icp_relative(depth_a: np.ndarray, depth_b: np.ndarray, intr, start: np.ndarray) -> np.ndarray:
     """The 4x4 pose of camera b in camera a's axes (inv(c2w_a) c2w_b) by point-to-plane ICP of the
-    two depth images, coarse to fine (4, 2, 1 cm) from `start`."""
-    import open3d as o3d
+    two depth images, coarse to fine (4, 2, 1 cm) from `start` (loop_pairs.py's ICP, 1 cm voxels)."""
+    from loop_pairs import cloud, icp
 
-    reg = o3d.pipelines.registration
-    source, target = depth_cloud(depth_b, intr), depth_cloud(depth_a, intr)
-    T = np.asarray(start, dtype=np.float64)
-    for distance in (0.04, 0.02, 0.01):
-        T = np.asarray(reg.registration_icp(source, target, distance, T, reg.TransformationEstimationPointToPlane(),
-                                            reg.ICPConvergenceCriteria(max_iteration=50)).transformation)
-    return T
+    return icp(cloud(depth_b, intr, 0.01), cloud(depth_a, intr, 0.01), np.asarray(start, dtype=np.float64))[0]
 
 
 def compare(icp_t: np.ndarray, traj_t: np.ndarray) -> dict:

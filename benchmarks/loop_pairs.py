@@ -32,12 +32,13 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from common import DATA, machine_line  # noqa: E402
 
 
-def cloud(frame, intr, voxel: float):
+def cloud(depth, intr, voxel: float):
+    """Open3D point cloud of a depth image (metres; 0 invalid) back-projected at `intr`, with normals."""
     import open3d as o3d
 
     from splat_core.camera import backproject
 
-    d = np.asarray(frame.depth)
+    d = np.asarray(depth)
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(backproject(d, intr)[d > 0])).voxel_down_sample(voxel)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
     return pc
@@ -108,7 +109,7 @@ def main(argv=None) -> int:
     intr = capture.intrinsics
     rows = []
     for a, b in pairs:
-        target, source = cloud(capture[a], intr, args.voxel), cloud(capture[b], intr, args.voxel)
+        target, source = cloud(capture[a].depth, intr, args.voxel), cloud(capture[b].depth, intr, args.voxel)
         rel = {"reference": np.linalg.inv(ref[a]) @ ref[b]}
         rel.update({name: np.linalg.inv(P[a]) @ P[b] for name, P in poses.items()})
         from_ref, fitness, rmse = icp(source, target, rel["reference"])

@@ -67,7 +67,8 @@ def main(argv=None) -> int:
             from loop_pairs import cloud, icp
 
             from splat_core.loop.verify import pose_difference
-            target, source = cloud(capture[a], capture.intrinsics, 0.01), cloud(capture[b], capture.intrinsics, 0.01)
+            intr = capture.intrinsics
+            target, source = cloud(capture[a].depth, intr, 0.01), cloud(capture[b].depth, intr, 0.01)
             for start in [n for n in rel if n != "sfm"][:2]:
                 sensor, fitness, _ = icp(source, target, rel[start])
                 for n, T in rel.items():

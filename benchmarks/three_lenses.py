@@ -139,7 +139,8 @@ def depth_pairs(capture, est, refs: dict, step: int, count: int) -> dict:
     found = {name: [] for name in ("run", *refs)}
     for a in starts:
         b = a + step
-        target, source = cloud(capture[a], capture.intrinsics, 0.01), cloud(capture[b], capture.intrinsics, 0.01)
+        intr = capture.intrinsics
+        target, source = cloud(capture[a].depth, intr, 0.01), cloud(capture[b].depth, intr, 0.01)
         rel = {"run": np.linalg.inv(est[a]) @ est[b]}
         rel.update({n: np.linalg.inv(r[a]) @ r[b] for n, r in refs.items() if np.isfinite(r[[a, b]]).all()})
         sensor = icp(source, target, rel["run"])[0]

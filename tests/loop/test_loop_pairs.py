@@ -35,8 +35,8 @@ def test_depth_icp_recovers_the_exact_relative_pose_from_a_wrong_start():
     start = exact.copy()
     start[:3, 3] += [0.03, -0.02, 0.01]            # 3.7 cm off, as a drifted run would be
     intr = source.intrinsics
-    T, fitness, _ = loop_pairs.icp(loop_pairs.cloud(source[b], intr, 0.01), loop_pairs.cloud(source[a], intr, 0.01),
-                                   start)
+    clouds = [loop_pairs.cloud(source[k].depth, intr, 0.01) for k in (b, a)]
+    T, fitness, _ = loop_pairs.icp(*clouds, start)
     cm, deg = pose_difference(T, exact)
     assert fitness > 0.3
     assert cm < 0.5 and deg < 0.5, (cm, deg)

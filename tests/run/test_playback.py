@@ -110,18 +110,24 @@ def test_max_frames_timeout_and_stop():
     assert play.next_index() is None
 
 
-def test_a_pipeline_on_a_playback_processes_the_newest_frames_and_reports_the_drops():
+def _playback_pipeline(n_frames: int, **overrides):
+    """(fake clock, Pipeline) on a 10 frames/s real-time playback of n synthetic 80x60 frames, `cpu`
+    preset with light mapping; `overrides`: more settings sections."""
     from splat_core.config import load_config
     from splat_core.run import Pipeline
     from splat_core.synthetic import SyntheticSource
 
     clock = FakeClock()
-    play = RealtimePlayback(SyntheticSource(n_frames=10, width=80, height=60, seed=0), fps=10.0,
+    play = RealtimePlayback(SyntheticSource(n_frames=n_frames, width=80, height=60, seed=0), fps=10.0,
                             clock=clock, sleep=clock.sleep)
     config = load_config("cpu", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
                                            "mapping": {"first_frame_iterations": 5, "iterations": 2},
-                                           "loop_closure": {"enabled": False}})
-    pipe = Pipeline(play, config)
+                                           "loop_closure": {"enabled": False}, **overrides})
+    return clock, Pipeline(play, config)
+
+
+def test_a_pipeline_on_a_playback_processes_the_newest_frames_and_reports_the_drops():
+    clock, pipe = _playback_pipeline(10)
     process = pipe.engine.process
 
     def slow(frame, given=None):          # SLAM takes 0.2 s a frame on the fake clock
@@ -142,18 +148,9 @@ def test_a_playback_that_drops_frames_unevenly_scales_the_prediction_and_keyfram
     # the last motion by the ratio of the capture-frame gaps (capped), and keyframes fall on the
     # first frame at or past every 5th capture frame, not on every 5th processed frame.
     from splat_core.camera import predict_constant_velocity
-    from splat_core.config import load_config
     from splat_core.keyframes import is_keyframe_time
-    from splat_core.run import Pipeline
-    from splat_core.synthetic import SyntheticSource
 
-    clock = FakeClock()
-    play = RealtimePlayback(SyntheticSource(n_frames=30, width=80, height=60, seed=0), fps=10.0,
-                            clock=clock, sleep=clock.sleep)
-    config = load_config("cpu", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 100,
-                                           "mapping": {"first_frame_iterations": 5, "iterations": 2},
-                                           "loop_closure": {"enabled": False}, "tracking": {"max_gap_ratio": 2.5}})
-    pipe = Pipeline(play, config)
+    clock, pipe = _playback_pipeline(30, tracking={"max_gap_ratio": 2.5})
     slam = pipe.engine.slam
     process, track = pipe.engine.process, slam.tracker.track
     durations = iter([0.1, 0.3, 0.1, 0.5] * 30)
