@@ -38,11 +38,13 @@ class TwoCameraCapture:
 def write_two_camera_tum(root: Path, n=6, width=320, height=240, stride=8, describe=True,
                          ratio=COLOR_FOCAL_RATIO, translation=DEPTH_TO_COLOR) -> TwoCameraCapture:
     """Frames 0, stride, 2 stride, ... of the synthetic orbit. `describe`: the camera file says
-    how the colour camera sits (else it only says colour and depth are not registered, as 7-Scenes' does)."""
+    how the colour camera sits (else it only says colour and depth are not registered, as 7-Scenes' does).
+    `ratio`: colour focal / depth focal, one for both axes or (x, y)."""
     root = Path(root)
     src = SyntheticSource(n_frames=n * stride, width=width, height=height)
     k = src.intrinsics
-    kc = Intrinsics(k.fx * ratio, k.fy * ratio, k.cx, k.cy, width, height)
+    rx, ry = np.broadcast_to(np.asarray(ratio, dtype=np.float64), (2,))
+    kc = Intrinsics(k.fx * rx, k.fy * ry, k.cx, k.cy, width, height)
     cap = TwoCameraCapture(root, src, k, kc, np.asarray(translation, dtype=np.float64),
                            list(range(0, n * stride, stride)))
     (root / "rgb").mkdir(parents=True, exist_ok=True)
