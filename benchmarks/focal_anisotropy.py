@@ -11,6 +11,10 @@ depth fy, the cameras' true focal lengths whatever the camera file says. Their q
 (colour fx / fy) / (depth fx / fy): with square colour pixels it is the depth camera's fy / fx. A
 depth camera with fx 560 and fy 585 (issue 44's candidate) would give rx / ry = 1.045.
 
+`--radial`: also a radial distortion k of the colour camera relative to the depth camera's (a colour
+pixel at k (x^2 + y^2) further out, in normalised coordinates), searched with a shared focal ratio:
+the edges see the difference of the two cameras' distortions, not what they share.
+
 `--hypothesis FX/FY`: also the best edge agreement with rx / ry held at FY / FX (square colour
 pixels, that depth camera), against the free best: how much worse the capture's edges say it is.
 Every sample is `--frames` frames: the first evenly spread over the capture (or `--range A-B`), the
@@ -51,13 +55,24 @@ def refine(data, start: tuple[float, float, float], quotient: float | None = Non
     return tuple(float(v) for v in best)
 
 
+def refine_radial(data, start: tuple[float, float, float]) -> tuple[float, ...]:
+    """(r, tx, ty, k) with the highest edge agreement, coarse to fine from the shared-ratio best."""
+    best = (*start, 0.0)
+    for ((rh, rs), (th, ts)), (kh, ks) in zip(STAGES, ((0.3, 0.05), (0.05, 0.01), (0.01, 0.0025))):
+        cands = [(a, x, y, c) for a in _grid(best[0], rh, rs) for x in _grid(best[1], th, ts)
+                 for y in _grid(best[2], th, ts) for c in _grid(best[3], kh, ks)]
+        scores = [data.score(a, x, y, k=c) for a, x, y, c in cands]
+        best = cands[int(np.argmax(scores))]
+    return tuple(float(v) for v in best)
+
+
 def sample(source, n: int, seed: int, lo: int, hi: int) -> list[int]:
     if seed == 0:
         return [lo + i for i in sample_frames(hi - lo, n)]
     return sorted(np.random.default_rng(seed).choice(np.arange(lo, hi), n, replace=False).tolist())
 
 
-def measure(source, ids: list[int], quotient: float | None) -> dict:
+def measure(source, ids: list[int], quotient: float | None, radial: bool = False) -> dict:
     pairs = [source.raw_pair(i) for i in ids]
     depth_intr = source.intrinsics.scaled(pairs[0][1].shape[1], pairs[0][1].shape[0])
     data = gather_edges(pairs, depth_intr)
@@ -69,6 +84,10 @@ def measure(source, ids: list[int], quotient: float | None) -> dict:
     if quotient is not None:
         hx, hy, htx, hty = refine(data, shared, quotient)
         out["hypothesis"] = {"rx": hx, "ry": hy, "score": data.score(hx, htx, hty, ry=hy)}
+    if radial:
+        r, tx, ty, k = refine_radial(data, shared)
+        out["radial"] = {"k": k, "score": data.score(r, tx, ty, k=k),
+                         "profile": {f"{c:+.1f}": data.score(r, tx, ty, k=c) for c in (-0.2, -0.1, 0.0, 0.1, 0.2)}}
     return out
 
 
@@ -78,6 +97,7 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=12, help="frames per sample")
     p.add_argument("--seeds", default="0", help="samples: 0 = evenly spread, others random with that seed")
     p.add_argument("--range", default=None, help="A-B: frames A..B-1 only")
+    p.add_argument("--radial", action="store_true", help="also the colour camera's radial distortion relative to depth's")
     p.add_argument("--hypothesis", default=None, help="FX/FY: a depth camera to test (square colour pixels)")
     args = p.parse_args(argv)
     source = open_capture(args.sequence if Path(args.sequence).exists() else DATA / args.sequence)
@@ -86,7 +106,7 @@ def main(argv=None) -> int:
     if args.hypothesis:
         fx, fy = (float(v) for v in args.hypothesis.split("/"))
         quotient = fy / fx
-    samples = [measure(source, sample(source, args.frames, int(s), lo, hi), quotient) for s in args.seeds.split(",")]
+    samples = [measure(source, sample(source, args.frames, int(s), lo, hi), quotient, args.radial) for s in args.seeds.split(",")]
     q = [s["rx_over_ry"] for s in samples]
     print(json.dumps({"machine": machine(), "sequence": args.sequence, "range": [lo, hi],
                       "hypothesis_rx_over_ry": quotient, "rx_over_ry_mean": float(np.mean(q)),

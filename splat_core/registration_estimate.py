@@ -90,11 +90,15 @@ class _Frames:
     grads: np.ndarray      # F x Hc x Wc
     color: Intrinsics      # the depth camera scaled to the colour images (the r = 1 colour camera)
 
-    def score(self, r: float, tx: float, ty: float, ry: float | None = None) -> float:
-        """Edge agreement with the colour camera (r * focal, offset tx, ty; `ry`: another ratio for
-        the vertical focal, benchmarks/focal_anisotropy.py)."""
+    def score(self, r: float, tx: float, ty: float, ry: float | None = None, k: float = 0.0) -> float:
+        """Edge agreement with the colour camera (r * focal, offset tx, ty; for
+        benchmarks/focal_anisotropy.py: `ry` another ratio for the vertical focal, `k` a radial
+        distortion of the colour camera relative to the depth camera's)."""
         F, h, w = self.grads.shape
         x, y, z = self.points[:, 0] + tx, self.points[:, 1] + ty, self.points[:, 2]
+        if k:
+            radial = 1 + k * (x * x + y * y) / (z * z)
+            x, y = x * radial, y * radial
         u = r * self.color.fx * x / z + self.color.cx
         v = (r if ry is None else ry) * self.color.fy * y / z + self.color.cy
         ok = (u >= 0) & (v >= 0) & (u < w - 1) & (v < h - 1)
