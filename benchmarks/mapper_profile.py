@@ -3,14 +3,16 @@ parts, and the whole step per frame (densify, window, prune, optimise) of a sequ
 
     python benchmarks/mapper_profile.py --input ../shared/data/7scenes_redkitchen_300 --frame 100
     python benchmarks/mapper_profile.py --input ../shared/data/sun3d_3dmatch_fragment2 --frame 40 --threads 1,2
+    OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/mapper_profile.py --clock cpu --config live --engine live
 
-Runs the sequential engine (`--config`, default `cpu`) up to frame `--frame`, timing map_frame's
-parts on every frame after 0, and keeps a copy of the map, the window and the random state that
-frame's `optimise_map` was called with. Then replays that call `--repeats` times on copies of the
-map with `--iterations` (default: the preset's, and the `live` preset's 20 for a keyframe step),
-timing each part by wrapping the functions that do it (projection, the rasterizer's binning, sort
-and kernels, the loss, each backward, Adam, pruning); what no wrapper covers (the subset's gather,
-Adam's construction, autograd's glue, the write-back) is the remainder. A replay's outputs equal
+Runs `--engine` (default sequential) on `--config` (default `cpu`) up to frame `--frame`, timing
+map_frame's parts (and publish, loop closure) on every frame after 0, and keeps a copy of the map,
+the window and the random state that frame's `optimise_map` was called with. Then replays that
+call `--repeats` times on copies of the map with `--iterations` (default: the preset's, and the
+`live` preset's 20 for a keyframe step), timing each part by wrapping the functions that do it
+(projection, the rasterizer's binning, sort and kernels, the loss, each backward, Adam, pruning);
+what no wrapper covers (the subset's gather, Adam's construction, autograd's glue, the
+write-back) is the remainder. A replay's outputs equal
 the run's own step (same map, window and random state), so the figures are those of real work.
 Prints medians over the repeats: ms per step and per iteration.
 """
@@ -27,7 +29,9 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as the CLI: idle OpenMP threads sleep (before torch)
+
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import ROOT, machine_line  # noqa: E402
@@ -37,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 TIMES: dict = defaultdict(float)
 COUNTS: dict = defaultdict(int)
 ACTIVE = {"on": False}
-CLOCK = {"now": time.perf_counter}     # --clock cpu: time.process_time (the process's CPU seconds)
+CLOCK = {"now": time.perf_counter, "part": time.perf_counter}   # --clock cpu: CPU seconds (see --help)
 
 
 def now() -> float:
@@ -123,12 +127,12 @@ def capture(args):
 
         @functools.wraps(original)
         def wrapper(self, *a, **k):
-            start = time.perf_counter()
+            start = CLOCK["part"]()
             try:
                 return original(self, *a, **k)
             finally:
                 if state["frame"] > 0:
-                    frame_parts[label].append(time.perf_counter() - start)
+                    frame_parts[label].append(CLOCK["part"]() - start)
         setattr(slam.SplaTAM, name, wrapper)
 
     original_map_frame = slam.SplaTAM.map_frame
@@ -139,13 +143,14 @@ def capture(args):
     slam.SplaTAM.map_frame = map_frame
     for name, label in [("map_frame", "map_frame (all)"), ("densify", "densify"),
                         ("select_window", "select_window"), ("prune", "prune (iteration 0)"),
-                        ("optimise", "optimise")]:
+                        ("optimise", "optimise"), ("publish", "publish (copy)"),
+                        ("close_loops", "close_loops")]:
         part(name, label)
 
     original_optimise = slam.optimise_map
 
     def optimise_map(m, window, intr, config, iterations, scene_radius, rng, renderer=None):
-        if state["frame"] == args.frame and state["call"] is None:
+        if state["frame"] >= args.frame and state["call"] is None:
             copy_m = GaussianMap(*(m.params[n].detach().clone() for n in m.params), m.birth_frame.clone())
             state["call"] = (copy_m, list(window), intr, config, iterations, scene_radius, copy.deepcopy(rng),
                              renderer)
@@ -153,7 +158,7 @@ def capture(args):
     slam.optimise_map = optimise_map
 
     out = tempfile.mkdtemp(prefix="mapper_profile_")
-    splatam_main(["run", "--input", args.input, "--out", out, "--config", args.config, "--engine", "sequential",
+    splatam_main(["run", "--input", args.input, "--out", out, "--config", args.config, "--engine", args.engine,
                   "--device", "cpu", "--quiet", "--max-frames", str(args.frame + 1)])
     slam.optimise_map = original_optimise
     slam.SplaTAM.map_frame = original_map_frame
@@ -211,15 +216,18 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--input", default=str(ROOT.parent / "shared" / "data" / "7scenes_redkitchen_300"))
     p.add_argument("--config", default="cpu")
-    p.add_argument("--frame", type=int, default=100, help="the frame whose mapping step is replayed")
+    p.add_argument("--engine", default="sequential", help="live: map_frame's parts are the mapper thread's")
+    p.add_argument("--frame", type=int, default=100,
+                   help="the mapping step replayed: the first at this frame or after (live: a keyframe's)")
     p.add_argument("--iterations", default=None,
                    help="comma-separated iteration counts to replay (default: the preset's, and 20)")
     p.add_argument("--repeats", type=int, default=5)
     p.add_argument("--save", default=None, help="keep the captured step in this file (torch.save)")
     p.add_argument("--load", default=None, help="replay a step saved with --save instead of running to it")
     p.add_argument("--clock", choices=("wall", "cpu"), default="wall",
-                   help="cpu: the process's CPU time (with one thread, what a loaded machine's wall clock "
-                        "would add waiting is left out)")
+                   help="cpu: CPU seconds instead of wall-clock ones: the replays' process time, map_frame's "
+                        "parts' thread time. Run with OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1: kernels then run in "
+                        "the calling thread, and a loaded machine's waits are left out")
     p.add_argument("--threads", default=None, help="comma-separated thread counts to replay under (torch and Numba)")
     args = p.parse_args()
     import numba
@@ -227,7 +235,7 @@ def main() -> None:
 
     load = os.getloadavg()
     if args.clock == "cpu":
-        CLOCK["now"] = time.process_time
+        CLOCK["now"], CLOCK["part"] = time.process_time, time.thread_time
     if args.load:
         call, frame_parts = torch.load(args.load, weights_only=False), {}
     else:
@@ -240,10 +248,11 @@ def main() -> None:
     print(f"# {Path(args.input).name} · {args.config} · frame {args.frame} · {machine_line()} · "
           f"{args.clock} clock · load {load[0]:.2f} at the start, {os.getloadavg()[0]:.2f} after the run · "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
-    print("\n## map_frame's parts per frame of the sequential run (frames 1..%d; ms, median / mean)\n" % args.frame)
-    print("| part | median ms | mean ms |\n|---|---|---|")
+    print(f"\n## map_frame's parts in the {args.engine} run, frames 1..{args.frame} (ms per call)\n")
+    print("| part | calls | median ms | mean ms | total s |\n|---|---|---|---|---|")
     for label, values in frame_parts.items():
-        print(f"| {label} | {np.median(values) * 1e3:.0f} | {np.mean(values) * 1e3:.0f} |")
+        print(f"| {label} | {len(values)} | {np.median(values) * 1e3:.0f} | {np.mean(values) * 1e3:.0f} | "
+              f"{np.sum(values):.1f} |")
     for n_threads in threads:
         torch.set_num_threads(n_threads)
         numba.set_num_threads(min(n_threads, numba.config.NUMBA_NUM_THREADS))
