@@ -503,11 +503,31 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
                     gl[_G_A * TILE + i] -= g_pow * half * dx * dx
                     gl[_G_B * TILE + i] -= g_pow * dx * dy
                     gl[_G_C * TILE + i] -= g_pow * half * dy * dy
-            for q in range(_G_FEAT + 4):
-                acc = zero
-                for i in range(ia, ib + 1):
-                    acc += gl[q * TILE + i]
-                isect_grads[k, q] = acc
+            # Each field's lanes summed in lane order (ia..ib), the ten fields side by side: ten
+            # independent add chains instead of one field's chain after another (same sums).
+            a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = a8 = a9 = zero
+            for i in range(ia, ib + 1):
+                a0 += gl[_G_MX * TILE + i]
+                a1 += gl[_G_MY * TILE + i]
+                a2 += gl[_G_A * TILE + i]
+                a3 += gl[_G_B * TILE + i]
+                a4 += gl[_G_C * TILE + i]
+                a5 += gl[_G_O * TILE + i]
+                a6 += gl[_G_FEAT * TILE + i]
+                a7 += gl[(_G_FEAT + 1) * TILE + i]
+                a8 += gl[(_G_FEAT + 2) * TILE + i]
+                a9 += gl[(_G_FEAT + 3) * TILE + i]
+            row = isect_grads[k]
+            row[_G_MX] = a0
+            row[_G_MY] = a1
+            row[_G_A] = a2
+            row[_G_B] = a3
+            row[_G_C] = a4
+            row[_G_O] = a5
+            row[_G_FEAT] = a6
+            row[_G_FEAT + 1] = a7
+            row[_G_FEAT + 2] = a8
+            row[_G_FEAT + 3] = a9
             kk -= one
 
 
