@@ -1,25 +1,40 @@
-"""The end-of-run colour fit (mapping.final_color_fit): the map's brightness made the keyframes'
-average instead of the latest frames'.
+"""The end-of-run colour fit (mapping.final_color_fit): the map's brightness made the run's average
+instead of the latest frames'.
 
 A Gaussian's colour follows the frames that saw it last: with auto-exposure (7-Scenes swings by
 ~40 % within 300 frames) the map ends at the exposure of the run's last stretch, and every other
 frame renders too dark or too bright. After the last frame, one gain g and offset b per channel
-are fitted by least squares over every keyframe's pixels,
+are fitted by least squares over the pixels of frames kept for it (`FitSamples`),
 
-    min sum_keyframes sum_pixels (g R + b A - O)^2        (R, A: the map's render and silhouette at
-                                                           the keyframe's pose; O: its colour)
+    min sum_frames sum_pixels (g R + b A - O)^2        (R, A: the map's render and silhouette at the
+                                                        frame's final pose; O: its colour)
 
 and applied to every Gaussian (c -> g c + b), which changes each render by exactly g R + b A.
-Three numbers per map from the keyframes only: no frame's own exposure enters its evaluation.
+
+The frames are held out from the evaluation: render metrics use frame 0 and every eval_every-th
+frame (metrics.is_evaluated), and so do the keyframes (keyframes.every, the same rule), so the fit
+uses neither: it keeps the frames midway between two evaluated ones (`is_fit_frame`: 2, 7, 12, ...
+at eval_every 5), their colour at half the working resolution in 8 bits (57.6 kB a frame at
+320x240), at most FIT_FRAMES_MAX of them (past that every other one is let go, evenly over the run).
+No evaluated frame's colour enters the fit (with keyframes.every = eval_every, as in the presets,
+no keyframe's either, but the second-to-last frame's at some run lengths).
 Poses are not touched (tracking has finished), so the trajectory is the run's as without it.
+SplaTAM.finish runs it once and publishes the fitted map (slam_checkpoint.py); its checkpoint
+keeps the colours from before the fit and the kept frames, so a resumed run fits the same.
 """
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import torch
 
 from .camera import Intrinsics
+from .metrics import is_evaluated
+
+FIT_FRAMES_MAX = 64
+FIT_SCALE = 0.5            # the kept colour and the fit's renders: half the working resolution
 
 
 class ColorFit:
@@ -54,9 +69,75 @@ class ColorFit:
         return gain, offset
 
 
+def is_fit_frame(t: int, eval_every: int) -> bool:
+    """Processed frame t is kept for the fit: midway between two evaluated frames, never one."""
+    every = max(1, eval_every)
+    return (t + 1 + every // 2) % every == 0 and not is_evaluated(t, every)
+
+
+class FitSamples:
+    """The fit's frames: their processed index and colour (uint8, FIT_SCALE of the working size).
+    Offered every frame by the tracking side (SplaTAM.track); bounded by thinning: past
+    FIT_FRAMES_MAX, only every 2nd, then 4th, ... fit frame of the run is kept."""
+
+    def __init__(self, intrinsics: Intrinsics, eval_every: int):
+        self.intrinsics = intrinsics.fraction(FIT_SCALE)
+        self.eval_every = eval_every
+        self.kept: list[tuple[int, np.ndarray]] = []     # (frame, colour); replaced, never edited, when thinned
+        self.stride = 1
+
+    def __len__(self) -> int:
+        return len(self.kept)
+
+    @property
+    def frames(self) -> list[int]:
+        return [t for t, _ in self.kept]
+
+    def _ordinal(self, t: int) -> int:
+        return (t + 1 + max(1, self.eval_every) // 2) // max(1, self.eval_every)
+
+    def offer(self, t: int, color: np.ndarray) -> None:
+        """Frame t's colour (H x W x 3 in [0, 1], the working resolution), kept if it is a fit frame."""
+        if not is_fit_frame(t, self.eval_every) or self._ordinal(t) % self.stride:
+            return
+        import cv2
+
+        small = cv2.resize(np.asarray(color, np.float32), (self.intrinsics.width, self.intrinsics.height),
+                           interpolation=cv2.INTER_AREA)
+        kept = self.kept + [(t, np.clip(np.rint(small * 255.0), 0, 255).astype(np.uint8))]
+        if len(kept) > FIT_FRAMES_MAX:
+            self.stride *= 2
+            kept = [(f, c) for f, c in kept if self._ordinal(f) % self.stride == 0]
+        self.kept = kept
+
+    def drop(self, t: int) -> None:
+        """Forget frame t (the live engine tracks it again: SplaTAM.retract)."""
+        if self.kept and self.kept[-1][0] == t:
+            self.kept = self.kept[:-1]
+
+    def views(self, w2cs: list, lost) -> list:
+        """The kept frames at their poses now (a loop correction moves them); `lost(t)`: a reason
+        when frame t's pose was not tracked (left out)."""
+        return [SimpleNamespace(frame_index=t, w2c=w2cs[t], color=c.astype(np.float32) / 255.0)
+                for t, c in self.kept if t < len(w2cs) and lost(t) is None]
+
+    def to_arrays(self, frames: int) -> dict:
+        """The samples of frames 0 .. frames-1 (a checkpoint's; the live mapper's is of an earlier frame)."""
+        kept = [(t, c) for t, c in self.kept if t < frames]
+        h, w = self.intrinsics.height, self.intrinsics.width
+        return dict(fit_frames=np.array([t for t, _ in kept], np.int64), fit_stride=np.array(self.stride),
+                    fit_colors=np.stack([c for _, c in kept]) if kept else np.zeros((0, h, w, 3), np.uint8))
+
+    def load_arrays(self, arrays: dict) -> None:
+        frames = [int(t) for t in arrays.get("fit_frames", ())]
+        self.kept = list(zip(frames, np.asarray(arrays["fit_colors"]))) if frames else []
+        self.stride = int(arrays.get("fit_stride", 1))
+
+
 def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer) -> dict:
-    """Fit the gain and offset over `views` (each with .color H x W x 3 and .w2c) and apply them to
-    `gmap`'s colours in place. Returns metrics.json's record: gain, offset, keyframes."""
+    """Fit the gain and offset over `views` (each with .color H x W x 3 at `intrinsics`, .w2c and
+    .frame_index) and apply them to `gmap`'s colours in place. Returns metrics.json's record: gain,
+    offset, views (how many) and frames (their indices)."""
     fit = ColorFit()
     with torch.no_grad():
         for view in views:
@@ -67,4 +148,5 @@ def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer) -> dict:
         g = torch.as_tensor(gain, dtype=colors.dtype, device=colors.device)
         b = torch.as_tensor(offset, dtype=colors.dtype, device=colors.device)
         colors.data.copy_(colors.data * g + b)
-    return dict(gain=[float(x) for x in gain], offset=[float(x) for x in offset], keyframes=fit.views)
+    return dict(gain=[float(x) for x in gain], offset=[float(x) for x in offset], views=fit.views,
+                frames=[int(v.frame_index) for v in views])

@@ -150,11 +150,14 @@ class MappingConfig:
     exposure_prior: float = setting(0.01, "weight of identity (gain 1, offset 0) in that fit, per pixel of the "
                                     "view (0: free fit)", unit="fraction")
     final_color_fit: bool = setting(False, "after the last frame, multiply and offset the map's colours (one gain "
-                                    "and offset per channel, least squares over every keyframe's render against "
-                                    "its colour; color_fit.py), so the map keeps the keyframes' average exposure "
+                                    "and offset per channel, least squares of the map's renders against frames "
+                                    "kept for it midway between the evaluated frames, never an evaluated one; "
+                                    "color_fit.py), so the map keeps the run's average exposure "
                                     "instead of the last frames'; poses are not touched",
-                                    trades="true: every frame's render is brighter or darker by the same three "
-                                    "numbers; on a capture without exposure changes the fit is near identity")
+                                    trades="true: every render is brighter or darker by the same three numbers; "
+                                    "on a capture without exposure changes the fit is near identity; up to 64 "
+                                    "frames at half resolution kept (57.6 kB each at 320x240) and rendered once "
+                                    "at the end")
 
 
 @dataclass

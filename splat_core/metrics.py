@@ -155,6 +155,12 @@ def relative_pose_errors(est_c2w, ref_c2w, delta: int = 1) -> tuple[np.ndarray, 
 
 # ----------------------------------------------------------------------------- images
 
+def is_evaluated(k: int, every: int) -> bool:
+    """Processed frame k is one a run's render metrics use (frame 0 and every `every`-th:
+    run/report.evaluate); the end-of-run colour fit leaves these out (color_fit.py)."""
+    return k == 0 or (k + 1) % max(1, every) == 0
+
+
 def psnr(pred, target, mask=None) -> float:
     """Peak signal-to-noise ratio (dB) for images in [0, 1]: 20 log10(1 / sqrt(MSE)).
 

@@ -19,14 +19,14 @@ read the map through `MapVersion`s that `publish` makes, never the tensors the m
 SplaTAM is the only writer of its state (map, poses, keyframes, loops); collaborators return
 results it applies: lost tracking a Verdict (relocalise.py), loop closure a LoopFound with its
 Correction (loop/; the engine chooses the locking: `close_loops(t, guard)`), densification new
-Gaussians (densify.py). `state_arrays` / `load_state_arrays` save and load all of it.
+Gaussians (densify.py). `state_arrays` / `load_state_arrays` save and load all of it, and
+`finish()` ends a run (the end-of-run colour fit): slam_checkpoint.py.
 """
 
 from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
 import threading
 import time
 
@@ -34,6 +34,7 @@ import numpy as np
 import torch
 
 from .camera import Intrinsics, invert_pose, predict_constant_velocity
+from .color_fit import FitSamples
 from .config import Config
 from .densify import frame_gaussians
 from .frame import Frame
@@ -44,6 +45,7 @@ from .loop.records import Correction, LoopRecord
 from .mapping import View, optimise_map, prune_mask
 from .relocalise import LostTracking
 from .render import Renderer
+from .slam_checkpoint import SlamState
 from .slam_state import FrameResult, MapStats, MapVersion, SlamView, snapshot_version
 from .tracking import Tracker, TrackResult
 
@@ -52,7 +54,7 @@ __all__ = ["SplaTAM", "FrameResult", "MapStats", "MapVersion", "snapshot_version
 NOT_KEYFRAME, KEYFRAME, DEFERRED = 0, 1, 2      # SplaTAM.keyframe_marks
 
 
-class SplaTAM:
+class SplaTAM(SlamState):
     def __init__(self, config: Config, intrinsics: Intrinsics, device="cpu", dtype=torch.float32,
                  total_frames: int | None = None, stride: int = 1):
         self.config = config
@@ -78,6 +80,9 @@ class SplaTAM:
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
+        # mapping.final_color_fit: frames kept for the end-of-run colour fit (color_fit.py; finish())
+        self.fit_samples = FitSamples(intrinsics, config.eval_every) if config.mapping.final_color_fit else None
+        self.color_fit, self._colors_before_fit = None, None
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)
@@ -177,6 +182,8 @@ class SplaTAM:
         self.w2cs.append(w2c)
         self.sources.append(int(frame.index))
         self._mark_keyframe(t, defer_keyframe)
+        if self.fit_samples is not None:
+            self.fit_samples.offer(t, frame.color)
         return t, w2c, tracked
 
     def retract(self, t: int) -> None:
@@ -188,6 +195,8 @@ class SplaTAM:
         self.sources.pop()
         self.keyframe_marks.pop()
         self.lost_tracking.forget(t)
+        if self.fit_samples is not None:
+            self.fit_samples.drop(t)
 
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True,
                   densified=None) -> MapStats:
@@ -309,52 +318,3 @@ class SplaTAM:
         with self._version_lock:
             version = self._version
         return version.wait_ready() if version is not None else None
-
-    # ------------------------------------------------------------------ state (checkpoints)
-    def tracking_state(self) -> tuple[str, str]:
-        """The tracking side's state (the tracker's pixel choice, the lost-tracking watch) as text."""
-        return self.tracker.state(), self.lost_tracking.state()
-
-    def state_arrays(self, w2cs: list | None = None, tracking_state: tuple[str, str] | None = None) -> dict:
-        """Everything a resume needs. The live engine's mapper saves the state at the newest frame
-        it mapped: `w2cs` up to that frame and the tracking state saved right after it was tracked."""
-        arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
-        arrays.update(self.keyframes.to_arrays())
-        arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
-        arrays["source_indices"] = np.array(self.sources[:len(arrays["w2cs"])], dtype=np.int64)
-        arrays["keyframe_marks"] = np.array(self.keyframe_marks[:len(arrays["w2cs"])], dtype=np.int8)
-        arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
-        arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
-        tracker_state, lost_state = self.tracking_state() if tracking_state is None else tracking_state
-        arrays["tracker_state"] = np.array(tracker_state)
-        arrays["lost_state"] = np.array(lost_state)
-        if self.loop_closure is not None:
-            arrays["loop_state"] = np.array(self.loop_closure.state())
-            arrays["loops"] = np.array(json.dumps([r.to_dict() for r in self.loops]))
-        return arrays
-
-    def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
-        """Restore a checkpoint; the keyframe images are the first records of `keyframe_file`."""
-        self.map = GaussianMap.from_numpy({k[4:]: v for k, v in arrays.items() if k.startswith("map_")},
-                                          device=self.device, dtype=self.dtype)
-        self.keyframes.load_arrays(arrays, keyframe_file)
-        self.w2cs = [w for w in np.asarray(arrays["w2cs"], dtype=np.float64)]
-        # a checkpoint from before capture indices were kept: every stride-th frame, none dropped
-        self.sources = [int(i) for i in arrays["source_indices"]] if "source_indices" in arrays \
-            else [k * self.stride for k in range(len(self.w2cs))]
-        radius = float(arrays["scene_radius"])
-        self.scene_radius = None if np.isnan(radius) else radius
-        self.rng.bit_generator.state = json.loads(str(arrays["rng_state"]))
-        if "tracker_state" in arrays:
-            self.tracker.load_state(str(arrays["tracker_state"]))
-        if "lost_state" in arrays:
-            self.lost_tracking.load_state(str(arrays["lost_state"]))
-        if "keyframe_marks" in arrays:
-            self.keyframe_marks = [int(k) for k in arrays["keyframe_marks"]]
-        else:       # a checkpoint from before the decisions were kept: the rule, nothing deferred
-            self.keyframe_marks = []
-            for t in range(len(self.w2cs)):
-                self._mark_keyframe(t, defer=False)
-        if self.loop_closure is not None and "loop_state" in arrays:
-            self.loop_closure.load_state(str(arrays["loop_state"]))
-            self.loops = [LoopRecord.from_dict(r) for r in json.loads(str(arrays.get("loops", "[]")))]

@@ -5,7 +5,7 @@
     version = engine.map_version()              # the newest map, safe to read from any thread
     engine.drain()                              # every frame handed over is in the map
     engine.close()
-    engine.finish_map()                         # end-of-run steps on the map (mapping.final_color_fit)
+    engine.finish_map()                         # SplaTAM.finish: the colour fit, the fitted map published
     engine.stats()                              # the engine's own figures for metrics.json
     engine.keyframes(), engine.trajectory(), engine.loops(), engine.loop_figures(), engine.num_gaussians(),
     engine.map_arrays(), engine.render(w2c)

@@ -282,13 +282,14 @@ class Pipeline:
         """Compute metrics and write the run folder (each file atomically)."""
         self.engine.drain()
         self.engine.close()
-        # Time to the end of mapping counts: the live engine's last frames are mapped only now.
+        start = time.perf_counter()
+        color_fit = self.engine.finish_map()     # the end-of-run colour fit (SplaTAM.finish)
+        fit_seconds = time.perf_counter() - start
+        # Time to the end of the run counts: the live engine's last frames are mapped only now, and
+        # the map is finished (its colours fitted) only now.
         if self.records and self._last_step is not None:
             self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
             self._last_step = None
-        start = time.perf_counter()
-        color_fit = self.engine.finish_map()     # timed apart from the frames' wall time
-        fit_seconds = time.perf_counter() - start
         result = self.metrics()
         if color_fit is not None:
             result["final_color_fit"] = dict(color_fit, seconds=fit_seconds)

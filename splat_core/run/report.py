@@ -28,8 +28,7 @@ def evaluate(render, w2cs: list, records: list[dict], frame_of, eval_every: int)
     """PSNR, SSIM and depth L1 of the map rendered (`render(w2c)`, engine.render) at the estimated
     poses `w2cs` of frame 0 and every eval_every-th frame (`frame_of(k)`: processed frame k); lost
     frames are left out (a guess)."""
-    every = max(1, eval_every)
-    picks = [k for k in range(len(records)) if (k == 0 or (k + 1) % every == 0) and not records[k].get("lost")]
+    picks = [k for k in range(len(records)) if M.is_evaluated(k, eval_every) and not records[k].get("lost")]
     psnrs, ssims, depth_l1s = [], [], []
     for k in picks:
         frame = frame_of(k)

@@ -42,14 +42,10 @@ class SlamReads:
         return self.slam.render_view(w2c)
 
     def finish_map(self) -> dict | None:
-        """The end-of-run steps on the map (after drain() and close()): mapping.final_color_fit, the
-        map's colours given the gain and offset per channel that best fit its renders to every
-        keyframe (color_fit.py). None: off, or no keyframes or Gaussians."""
-        slam = self.slam
-        if not slam.config.mapping.final_color_fit or not len(slam.keyframes) or not len(slam.map):
-            return None
-        from ..color_fit import fit_map_colors
-        return fit_map_colors(slam.map, list(slam.keyframes), slam.intrinsics, slam.renderer)
+        """The end of the run (after drain() and close()): SplaTAM.finish, which fits the map's colours
+        (mapping.final_color_fit) and publishes the fitted map, so map_version(), map_arrays(),
+        render() and the checkpoint all give it. Its record, or None (off, or nothing to fit)."""
+        return self.slam.finish()
 
     def attach_keyframes(self, path) -> None:
         self.slam.keyframes.attach(path)
