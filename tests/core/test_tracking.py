@@ -139,3 +139,33 @@ def test_a_reused_render_aligns_the_next_frame_as_a_fresh_one_does():
     assert _centre_error(first.w2c, truth) < 0.01
     assert _centre_error(reused.w2c, truth) < max(0.003, 1.5 * _centre_error(fresh.w2c, truth)), \
         (_centre_error(reused.w2c, truth), _centre_error(fresh.w2c, truth))
+
+
+@pytest.mark.parametrize("rival", [True, False])
+def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_prediction_only_when_scored(rival):
+    """tracking.align.reuse_rival: on a frame aligned against a reused render, an alignment gone
+    astray (4 cm off, as the synthetic corridor's went looking down it) loses to a right prediction
+    when the prediction is scored (true); unscored (false, the `live` preset's), it is kept, and on the
+    corridor one such frame fed the motion model a wrong velocity and the live preset lost it at
+    frames 241-255 (docs/benchmarks.md, "Long runs")."""
+    m, f1, truth, _ = _perturbed_tracking_case()
+    config = dataclasses.replace(load_config("live").tracking, pixel_tile=4, min_pixels=1)
+    config = dataclasses.replace(config, align=dataclasses.replace(config.align, reuse_rival=rival))
+    gaussians = m.tensors(detach=True)           # one map version: the second frame reuses the render
+    tracker = Tracker(config, f1.intrinsics, Renderer())
+    aligned = tracker.align
+
+    def astray(g, color, depth, w2c, model=None):
+        out = aligned(g, color, depth, w2c, model)
+        if model is not None:                     # only against the reused render
+            out = dataclasses.replace(out, w2c=pose_matrix(np.eye(3), (0.0, 0.0, 0.04)) @ out.w2c)
+        return out
+    tracker.align = astray
+    tracker.track(gaussians, f1.color, f1.depth, pose_matrix(np.eye(3), (0.01, 0.0, 0.0)) @ truth, reuse=True)
+    assert tracker._model is not None            # the render is kept for the next frame
+    out = tracker.track(gaussians, f1.color, f1.depth, truth, reuse=True)
+    assert tracker._model is not None and tracker._model.uses == 1      # it was aligned against the reused render
+    if rival:
+        assert out.start == "prediction" and _centre_error(out.w2c, truth) < 0.005, (out.start, _centre_error(out.w2c, truth))
+    else:
+        assert out.start == "aligned" and _centre_error(out.w2c, truth) > 0.03, (out.start, _centre_error(out.w2c, truth))
