@@ -56,6 +56,10 @@ class AlignConfig:
                                 "sparse-pixel render of its own, so the aligned pose is kept only if it beats it "
                                 "(false: keep the aligned pose; the polish and the lost-tracking check still judge it)",
                                 trades="false: one render less on those frames, no fallback to the prediction")
+    reuse_rival_beyond: float = setting(0.0, "with reuse_rival false: score the prediction anyway on a frame whose "
+                                        "aligned camera centre is further than this from the prediction's (an "
+                                        "alignment gone astray against a render from further away); 0: never",
+                                        unit="m", trades="less: the prediction's render on more frames (live: 0.01)")
     backend: AlignBackend = setting("auto", "numba (CPU, align/numba_backend.py), torch (the map's "
                                     "device, align/torch_backend.py), or auto: torch on CUDA, else numba")
 

@@ -228,6 +228,14 @@ class ReusedRender(NamedTuple):
     uses: int                   # frames it has served since
 
 
+def moved_beyond(w2c_a: np.ndarray, w2c_b: np.ndarray, distance: float) -> bool:
+    """The two poses' camera centres more than `distance` apart (0: never)."""
+    if not distance > 0:
+        return False
+    centre = lambda w2c: -w2c[:3, :3].T @ w2c[:3, 3]   # noqa: E731
+    return bool(np.linalg.norm(centre(np.asarray(w2c_a)) - centre(np.asarray(w2c_b))) > distance)
+
+
 class Tracker:
     """align -> accept -> polish for one frame at a time (see the module docstring)."""
 
@@ -261,7 +269,7 @@ class Tracker:
                 else self.observe(color, depth, self.intrinsics)
             if model is not None:        # the render is not at the prediction: its loss costs a render of its own
                 self._model = model._replace(uses=model.uses + 1)
-                if not tc.align.reuse_rival:
+                if not tc.align.reuse_rival and not moved_beyond(aligned.w2c, start, tc.align.reuse_rival_beyond):
                     prediction = None
                 else:
                     with torch.no_grad():
@@ -270,7 +278,7 @@ class Tracker:
                 if reuse and tc.align.reuse_render > 0:
                     self._model = ReusedRender(gaussians, g, aligned.first_render, start, 0)
                 prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
-            if prediction is None:       # tracking.align.reuse_rival false: the aligned pose, unchallenged
+            if prediction is None:       # reuse_rival false, within reuse_rival_beyond: the aligned pose, unchallenged
                 start = Candidate("aligned", aligned.w2c, float("nan"), 0)
             elif observations and full is observations[0]:
                 # Accept rides on the polish's first iteration, which evaluates the aligned pose anyway.

@@ -141,16 +141,20 @@ def test_a_reused_render_aligns_the_next_frame_as_a_fresh_one_does():
         (_centre_error(reused.w2c, truth), _centre_error(fresh.w2c, truth))
 
 
-@pytest.mark.parametrize("rival", [True, False])
-def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_prediction_only_when_scored(rival):
+@pytest.mark.parametrize("rival,beyond,scored", [(True, 0.0, True), (False, 0.0, False), (False, 0.01, True),
+                                                 (False, 0.06, False)])
+def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_prediction_only_when_scored(rival, beyond, scored):
     """tracking.align.reuse_rival: on a frame aligned against a reused render, an alignment gone
     astray (4 cm off, as the synthetic corridor's went looking down it) loses to a right prediction
     when the prediction is scored (true); unscored (false, the `live` preset's), it is kept, and on the
     corridor one such frame fed the motion model a wrong velocity and the live preset lost it at
-    frames 241-255 (docs/benchmarks.md, "Long runs")."""
+    frames 241-255 (docs/benchmarks.md, "Long runs"). reuse_rival_beyond: scored anyway when the
+    alignment moved the camera further than that from the prediction (here 4 cm: 1 cm scores it, 6 cm
+    does not)."""
     m, f1, truth, _ = _perturbed_tracking_case()
     config = dataclasses.replace(load_config("live").tracking, pixel_tile=4, min_pixels=1)
-    config = dataclasses.replace(config, align=dataclasses.replace(config.align, reuse_rival=rival))
+    config = dataclasses.replace(config, align=dataclasses.replace(config.align, reuse_rival=rival,
+                                                                   reuse_rival_beyond=beyond))
     gaussians = m.tensors(detach=True)           # one map version: the second frame reuses the render
     tracker = Tracker(config, f1.intrinsics, Renderer())
     aligned = tracker.align
@@ -165,7 +169,7 @@ def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_predictio
     assert tracker._model is not None            # the render is kept for the next frame
     out = tracker.track(gaussians, f1.color, f1.depth, truth, reuse=True)
     assert tracker._model is not None and tracker._model.uses == 1      # it was aligned against the reused render
-    if rival:
+    if scored:
         assert out.start == "prediction" and _centre_error(out.w2c, truth) < 0.005, (out.start, _centre_error(out.w2c, truth))
     else:
         assert out.start == "aligned" and _centre_error(out.w2c, truth) > 0.03, (out.start, _centre_error(out.w2c, truth))
