@@ -177,7 +177,7 @@ class SlamWorker(threading.Thread):
     def _show(self, live: LiveView | None) -> None:
         """Make `live` the panel's frame; its render's PSNR goes into the plot at its own frame
         (a render made in the preview thread arrives after later frames were processed)."""
-        if live is None:
+        if live is None or live is self._live:
             return
         self._live = live
         frames, values = self._history["frame"], self._history["psnr"]

@@ -82,7 +82,6 @@ class SplaTAM(SlamState):
         self._versions_made = 0
         # mapping.final_color_fit: frames kept for the end-of-run colour fit (color_fit.py; finish())
         self.fit_samples = FitSamples(intrinsics, config.eval_every) if config.mapping.final_color_fit else None
-        self.color_fit, self._colors_before_fit = None, None
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)

@@ -55,7 +55,6 @@ class SlamState:
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         if self._colors_before_fit is not None:
             arrays["fit_colors_before"] = self._colors_before_fit.cpu().numpy()
-            arrays["color_fit"] = np.array(json.dumps(self.color_fit))
         arrays.update(self.keyframes.to_arrays())
         arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
         if self.fit_samples is not None:
