@@ -74,6 +74,10 @@ class MapFraming:
         with self._lock:
             self._sent[client.client_id] = [(np.array(cam.position, np.float64), np.array(cam.look_at, np.float64))]
         client.camera.on_update(lambda camera: self._on_camera(client.client_id, camera))
+        # viser runs this (a connect callback) on its thread pool after the page's first camera
+        # report, and may handle the page's next reports before it: judge the pose it already has
+        if client.camera.image_width > 0:
+            self._on_camera(client.client_id, client.camera)
 
     def detach(self, client_id: int) -> None:
         with self._lock:
@@ -83,6 +87,11 @@ class MapFraming:
 
     def follows(self, client_id: int) -> bool:
         return client_id in self._sent and client_id not in self.moved
+
+    def acknowledged(self, client_id: int) -> bool:
+        """Whether the page has reported a pose this class gave it (from then on, any other pose it
+        reports is its visitor's)."""
+        return client_id in self._acked
 
     def _on_camera(self, client_id: int, camera) -> None:
         position = np.asarray(camera.position, np.float64)

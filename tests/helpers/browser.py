@@ -18,15 +18,22 @@ def connect(browser, server):
     page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
     client = wait_until(lambda: next(iter(server.get_clients().values()), None), 60, what="client")
     wait_until(lambda: client.camera.image_width > 0, 30, what="camera")
+    # the page reports its own start-up pose first and applies the server's initial camera after
+    # it: wait for that, or a camera a test sets now may be replaced by the initial one
+    wait_until(lambda: np.allclose(client.camera.position, server.initial_camera.position, atol=1e-3), 30,
+               what="the page at the server's initial camera")
     page.external_requests, page.errors = external, errors
     return page, client
 
 
 def look(client, position, look_at):
+    """Set the page's camera and wait until the page reports it."""
     with client.atomic():
         client.camera.up_direction = (0.0, -1.0, 0.0)
         client.camera.position = position
         client.camera.look_at = look_at
+    wait_until(lambda: np.allclose(client.camera.position, position, atol=1e-3)
+               and np.allclose(client.camera.look_at, look_at, atol=1e-3), 30, what=f"the page's camera at {position}")
 
 
 def render(client, h=150, w=200):

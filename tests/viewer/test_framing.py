@@ -14,6 +14,7 @@ from app.viewer.framing import MapFraming, framing_view
 class FakeCamera:
     def __init__(self):
         self.position, self.look_at, self.up_direction = np.zeros(3), np.array([0.0, 0.0, 1.0]), None
+        self.image_width = 0                       # 0 until the page's first report (viser's rule)
         self.callbacks = []
 
     def on_update(self, cb):
@@ -22,6 +23,7 @@ class FakeCamera:
     def report(self, position, look_at):
         """The page reports a pose (what viser's camera message does)."""
         self.position, self.look_at = np.asarray(position, float), np.asarray(look_at, float)
+        self.image_width = 640
         for cb in self.callbacks:
             cb(self)
 
@@ -99,3 +101,20 @@ def test_a_page_follows_the_framing_until_its_visitor_moves_the_camera():
     moved.gaussians["means"] = moved.gaussians["means"] + np.array([2.0, 0.0, 0.0])
     assert framing.update(moved)
     assert np.allclose(cam.look_at, turned)
+
+
+def test_a_pose_reported_before_the_page_was_attached_counts():
+    """viser runs the connect callback (attach) on a thread pool after the page's first report, so
+    the page's report of the initial camera can come before attach: attach judges the pose the page
+    already has, and a pose the visitor sets after it is theirs."""
+    page = FakeClient(1)
+    framing = make([])
+    page.camera.report((3.0, 3.0, 3.0), (0.0, 0.0, 0.0))        # the initial camera, before attach
+    framing.attach(page)
+    assert framing.acknowledged(1) and framing.follows(1)
+    page.camera.report((0.5, 0.0, 0.8), (0.5, 0.0, 2.0))        # the visitor's
+    assert not framing.follows(1)
+    other = FakeClient(2)                                        # a page reporting another pose first
+    other.camera.report((1.0, 2.0, 3.0), (0.0, 0.0, 0.0))
+    framing.attach(other)
+    assert not framing.acknowledged(2) and framing.follows(2)

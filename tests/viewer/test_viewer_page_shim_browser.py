@@ -32,7 +32,12 @@ def watch_a_run(browser, server, tmp_path):
         page.on("console", lambda m: messages.append((m.type, m.text)))
         for name in ("/keyframes", "/trajectory", "/camera"):   # count map colours only
             client.scene.add_frame(name, show_axes=False, visible=False)
+        # the view stays the test's: the viewer frames the map only for pages whose visitor has not
+        # moved the camera (framing.py), so wait until it has seen the page at its start-up pose and
+        # then at the test's
+        wait_until(lambda: app.framing.acknowledged(client.client_id), 30, what="the page at the viewer's view")
         look(client, (0.5, 0.0, 0.8), (0.5, 0.0, 2.0))
+        wait_until(lambda: client.client_id in app.framing.moved, 30, what="the page's camera the test's own")
         sent_before = app.map_layer.chunks_sent
         worker.start()
         step = 0
