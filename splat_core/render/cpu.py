@@ -65,7 +65,7 @@ SPAN_SLACK = 0.01
  _C_HEIGHT) = range(11)
 
 # Layout of the per-Gaussian parameter rows (depth-sorted, live Gaussians only).
-_P_MX, _P_MY, _P_A, _P_B, _P_C, _P_O, _P_K, _P_DET = range(8)   # K: the box's bound (also _strip_rows'); det: kept for inspection
+_P_MX, _P_MY, _P_A, _P_B, _P_C, _P_O, _P_K, _P_DET = range(8)   # K, det: box inputs (kept for inspection)
 _P_WIDTH = 8
 
 # Layout of a per-intersection gradient row: means2d (2), conic (3), opacity (1), features (C).
@@ -167,7 +167,8 @@ def _bin_to_tiles(boxes, ntx, nty, tile_mask):
     intersections that belong to it).
 
     The tile size is the compile-time TILE: a division by it compiles to a shift, where a
-    run-time divisor cost a 64-bit division per box edge (~60 % of this function's time).
+    run-time divisor cost a 64-bit division per box edge (this function took 2.0 ms with it, 1.3
+    without, on a 7-Scenes mapping view: docs/benchmarks.md).
     """
     tile = TILE
     L = boxes.shape[0]
@@ -254,47 +255,6 @@ def _exp_overload(x):
             return e * _pow2_float32(n)
         return impl
     return lambda x: math.exp(x)
-
-
-@njit(inline="always")
-def _strip_rows(mx, my, A, B, C, K, xa, xb, ya, yb):
-    """Rows ya..yb narrowed to those where the ellipse q(d) <= K' reaches columns xa..xb (a
-    conservative superset, in float64): q(d) = A dx^2 + 2 B dx dy + C dy^2 with d = centre -
-    pixel, as the kernels test it, and K' = 1.02 K + 0.5, wider than the boxes' K (itself
-    enlarged by SPAN_SLACK), so that the kernels' float32 rounding can never keep a pixel outside.
-    Rows left out have no pixel that passes the per-pixel test: skipping them changes nothing.
-
-    For a fixed dx the ellipse spans dy in (-B dx -+ sqrt(C K' - det dx^2)) / C; the top of that
-    span is concave in dx and highest at the ellipse's top point (dx = -B t / A, t = sqrt(K' A /
-    det)), so over the strip it is highest at the strip's dx nearest that point (likewise the
-    bottom). Returns (ya, yb) unchanged where the inputs are degenerate."""
-    mx = float(mx)
-    my = float(my)
-    A = float(A)
-    B = float(B)
-    C = float(C)
-    Kw = 1.02 * float(K) + 0.5
-    det = A * C - B * B
-    if not (det > 0.0 and A > 0.0 and C > 0.0 and Kw > 0.0):
-        return ya, yb
-    dxa = mx - xb                 # dx = mx - x over x in [xa, xb]
-    dxb = mx - xa
-    t = math.sqrt(Kw * A / det)
-    d = min(max(-B * t / A, dxa), dxb)
-    w = C * Kw - det * d * d
-    top = (-B * d + (math.sqrt(w) if w > 0.0 else 0.0)) / C      # largest dy over the strip
-    d = min(max(B * t / A, dxa), dxb)
-    w = C * Kw - det * d * d
-    bottom = (-B * d - (math.sqrt(w) if w > 0.0 else 0.0)) / C   # smallest dy
-    lo = my - top                 # y = my - dy
-    hi = my - bottom
-    if not (lo <= hi):            # NaN
-        return ya, yb
-    if lo > ya:
-        ya = int(math.ceil(min(lo, float(yb + 1))))
-    if hi < yb:
-        yb = int(math.floor(max(hi, float(ya - 1))))
-    return ya, yb
 
 
 # Per-tile pixel state of the forward: st[row, field, lane] (one array, so LLVM sees no aliasing).
@@ -498,12 +458,7 @@ def _backward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys,
             ib = min(boxes[j, 1] - px0, ncols - 1)
             for q in range(gl.shape[0]):   # all of it: a range from ia would compile to scatters
                 gl[q] = zero
-            ya = max(boxes[j, 2], py0)
-            yb = min(boxes[j, 3], py0 + nrows - 1)
-            if ia > boxes[j, 0] - px0 or ib < boxes[j, 1] - px0:
-                # The tile cuts the box's columns: only the rows where the ellipse reaches them.
-                ya, yb = _strip_rows(mx, my, A, B, C, params[j, _P_K], px0 + ia, px0 + ib, ya, yb)
-            for y in range(ya, yb + 1):
+            for y in range(max(boxes[j, 2], py0), min(boxes[j, 3], py0 + nrows - 1) + 1):
                 r = y - py0
                 if kk > rowlast[r]:
                     continue
