@@ -167,8 +167,8 @@ def _bin_to_tiles(boxes, ntx, nty, tile_mask):
     intersections that belong to it).
 
     The tile size is the compile-time TILE: a division by it compiles to a shift, where a
-    run-time divisor cost a 64-bit division per box edge (this function took 2.0 ms with it, 1.3
-    without, on a 7-Scenes mapping view: docs/benchmarks.md).
+    run-time divisor cost a 64-bit division per box edge (the rasterizer's forward, binning
+    included, was 3-6 % slower with it: docs/benchmarks.md, h13-itercost).
     """
     tile = TILE
     L = boxes.shape[0]
