@@ -158,14 +158,19 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts,
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _bin_to_tiles(boxes, tile, ntx, nty, tile_mask):
+def _bin_to_tiles(boxes, ntx, nty, tile_mask):
     """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
 
     Only tiles with tile_mask[t] != 0 get lists (the others render empty). Returns gauss_offsets
     (L + 1: each Gaussian's intersections), tile_offsets (ntiles + 1), isect_gauss (sorted
     Gaussian index per intersection) and gauss_slots (for each Gaussian, in its own order, the
     intersections that belong to it).
+
+    The tile size is the compile-time TILE: a division by it compiles to a shift, where a
+    run-time divisor cost a 64-bit division per box edge (the rasterizer's forward, binning
+    included, was 3-6 % slower with it: docs/benchmarks.md, h13-itercost).
     """
+    tile = TILE
     L = boxes.shape[0]
     ntiles = ntx * nty
     tile_offsets = np.zeros(ntiles + 1, dtype=np.int64)
@@ -680,7 +685,7 @@ def _bin(means2d, conics, opacities, features, depths, radii, width, height, dty
     _gather_sorted(pick, live, params, boxes, feats, b.order, b.params, b.boxes, blocks)
     b.blocks = list(blocks)
     t1 = time.perf_counter()
-    b.gauss_offsets, b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, TILE, b.ntx, nty, mask)
+    b.gauss_offsets, b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, b.ntx, nty, mask)
     # Pixel coordinates in the working dtype, padded to whole tiles (lanes past the edge).
     b.xs = np.arange(b.ntx * TILE, dtype=dtype)
     b.ys = np.arange(nty * TILE, dtype=dtype)
@@ -756,8 +761,11 @@ def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
     with numba_lock():
         for i, block in enumerate(b.blocks):
             t0 = time.perf_counter()
-            gi = np.zeros((H, W, 4), dtype=dtype)
-            gi[..., :max(0, min(4, C - 4 * i))] = grad_image[..., 4 * i:4 * i + 4]
+            if C == 4 and grad_image.shape == (H, W, 4) and grad_image.dtype == dtype:
+                gi = np.ascontiguousarray(grad_image)       # one whole block: no copy needed
+            else:
+                gi = np.zeros((H, W, 4), dtype=dtype)
+                gi[..., :max(0, min(4, C - 4 * i))] = grad_image[..., 4 * i:4 * i + 4]
             # dAlpha/da enters once, with the first block; the other blocks add colour terms only.
             ga = grad_alpha if i == 0 else np.zeros_like(grad_alpha)
             isect_grads = np.empty((b.isect_gauss.shape[0], _G_FEAT + 4), dtype=dtype)
@@ -766,16 +774,22 @@ def _backward(b: _Binned, grad_image: np.ndarray, grad_alpha: np.ndarray):
                                  b.ys, b.consts, W, H, TILE, b.ntx, b.t_final, b.last,
                                  b.tile_last, gi, ga, isect_grads)
             t1 = time.perf_counter()
-            bm = np.zeros((b.n, 2), dtype=dtype)
-            bq = np.zeros((b.n, 3), dtype=dtype)
-            bo = np.zeros(b.n, dtype=dtype)
-            bf = np.zeros((b.n, 4), dtype=dtype)
-            _reduce_grads(b.order, b.gauss_offsets, b.gauss_slots, isect_grads, b.consts[_C_ZERO],
-                          bm, bq, bo, bf)
-            g_m += bm
-            g_q += bq
-            g_o += bo
-            g_f[:, 4 * i:4 * i + 4] = bf
+            if len(b.blocks) == 1:
+                # One block: its sums are the gradients (a sum that starts at +0 is never -0, so
+                # this equals adding them to zeros, bit for bit).
+                _reduce_grads(b.order, b.gauss_offsets, b.gauss_slots, isect_grads, b.consts[_C_ZERO],
+                              g_m, g_q, g_o, g_f)
+            else:
+                bm = np.zeros((b.n, 2), dtype=dtype)
+                bq = np.zeros((b.n, 3), dtype=dtype)
+                bo = np.zeros(b.n, dtype=dtype)
+                bf = np.zeros((b.n, 4), dtype=dtype)
+                _reduce_grads(b.order, b.gauss_offsets, b.gauss_slots, isect_grads, b.consts[_C_ZERO],
+                              bm, bq, bo, bf)
+                g_m += bm
+                g_q += bq
+                g_o += bo
+                g_f[:, 4 * i:4 * i + 4] = bf
             t_kernel += t1 - t0
             t_reduce += time.perf_counter() - t1
     last_stats.update(backward_kernel_ms=1e3 * t_kernel, reduce_ms=1e3 * t_reduce)

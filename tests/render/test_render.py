@@ -372,3 +372,23 @@ def test_depth_radix_sort_is_numpys_stable_argsort(n):
     depth = rng.choice(np.exp(rng.uniform(-4, 4, max(1, n // 3))), size=n).astype(np.float32)
     order = cpu_backend._radix_argsort(depth.view(np.int32))
     assert np.array_equal(order, np.argsort(depth, kind="stable"))
+
+
+def test_one_feature_block_reduces_as_several_do_bit_for_bit():
+    """With one 4-channel block the backward sums each Gaussian's rows straight into its gradients;
+    with more blocks it adds each block's sums to zeros. Four channels, and the same four plus four
+    whose gradient is zero (a second block adding nothing), give the same gradients bit for bit."""
+    g = _scene("mixed", torch.float32, seed=5)
+    p = project_gaussians(g, INTR, w2c_from_quat_trans(*_pose(torch.float32)), near=NEAR)
+    feats = torch.cat([g.colors, p.depths[:, None]], 1).detach()
+    weight = torch.randn(INTR.height, INTR.width, 4, generator=torch.Generator().manual_seed(0))
+    grads = []
+    for extra in (0, 4):
+        leaves = [x.detach().clone().requires_grad_() for x in (p.means2d, p.conics, p.opacities)]
+        f = torch.cat([feats, torch.rand(len(feats), extra)], 1).requires_grad_()
+        image, alpha = rasterize_cpu(*leaves, f, p.depths.detach(), p.radii, INTR.width, INTR.height)
+        ((image[..., :4] * weight).sum() + alpha.sum()).backward()
+        grads.append([x.grad for x in leaves] + [f.grad[:, :4]])
+    assert float(grads[0][0].abs().max()) > 0
+    for a, b in zip(*grads):
+        assert torch.equal(a, b)
