@@ -162,6 +162,16 @@ class MappingConfig:
                                     "on a capture without exposure changes the fit is near identity; up to 64 "
                                     "frames at half resolution kept (57.6 kB each at 320x240) and rendered once "
                                     "at the end")
+    final_color_fit_min_improvement: float = setting(
+        0.08, "that fit is applied only if, fitted on half of its frames, it lowers the squared colour error on "
+        "the other half (and the other way round) by at least this fraction; else the map is left as it is "
+        "(color_fit.py)", unit="fraction",
+        trades="smaller: smaller corrections kept, which on a capture of one exposure cost the evaluated "
+        "frames up to 0.16 dB (SUN3D); larger: only large exposure corrections (7-Scenes) kept")
+    final_color_fit_prior: float = setting(
+        0.03, "weight of identity (gain 1, offset 0) in that fit, per pixel of its frames (0: least squares)",
+        unit="fraction", trades="larger: smaller corrections (the fit's frames are not the map's training "
+        "views and ask for more than the evaluated frames need)")
 
 
 @dataclass
@@ -179,6 +189,13 @@ class DensifyConfig:
                                "a dark or shiny patch, a depth shadow behind an edge); 0 = off (densify.py)",
                                unit="fraction of width",
                                trades="larger: bigger holes get colour, at a guessed depth")
+    hole_fill_tracked: bool = setting(True, "tracking renders the hole-filled Gaussians too (false: it leaves "
+                                      "them out until a later frame's depth confirms them; densify.py)",
+                                      trades="false: measured worse on SUN3D fragment 1 (ATE 1.92 / 1.84 cm "
+                                      "against 1.74 / 1.78, two seeds; docs/benchmarks.md, Candidate 4)")
+    hole_fill_carve: bool = setting(True, "a hole-filled Gaussian that a later frame sees through (a depth "
+                                    "measured behind it at its pixel) is removed, so that frame's own Gaussians "
+                                    "take its place (densify.py)")
 
 
 @dataclass

@@ -8,6 +8,11 @@ and the measured depth is valid. With densify.hole_fill > 0, pixels without vali
 map is empty get one too, at the farthest valid depth within hole_fill x the image width
 (`filled_depth`; farthest, as a depth shadow beside an edge belongs to the background): a screen
 or a black, shiny patch the depth camera misses would otherwise stay black in every render.
+Those Gaussians are marked `guessed` (GaussianMap.guessed) until a later frame measures a depth
+within CONFIRM_TOLERANCE of theirs at their pixel, and (densify.hole_fill_carve) are removed where
+a later frame measures a depth behind them (`check_guessed`, run before each frame's densification
+while the map has any). With densify.hole_fill_tracked false, tracking leaves guessed Gaussians out
+of its renders (off by default: on SUN3D fragment 1 that raised the ATE, docs/benchmarks.md).
 New Gaussians sit on the back-projected pixel, with a one-pixel
 radius (depth / mean focal length at the densification resolution) and opacity 0.5.
 """
@@ -17,10 +22,13 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from .camera import Intrinsics, backproject, invert_pose
+from .camera import Intrinsics, backproject, invert_pose, project
 from .config import DensifyConfig
 from .frame import resize_to
 from .gaussians import GaussianMap
+
+
+CONFIRM_TOLERANCE = 0.03   # relative depth agreement that confirms a guessed Gaussian (3 %: Kinect-class noise at 4 m)
 
 
 def new_pixel_mask(depth: np.ndarray, rendered_depth: np.ndarray, silhouette: np.ndarray,
@@ -58,14 +66,16 @@ def hole_pixel_mask(depth: np.ndarray, filled: np.ndarray, silhouette: np.ndarra
 
 def gaussians_from_pixels(color: np.ndarray, depth: np.ndarray, mask: np.ndarray, intr: Intrinsics,
                           w2c: np.ndarray, frame_index: int, config: DensifyConfig, isotropic: bool,
-                          device="cpu", dtype=torch.float32) -> GaussianMap:
-    """Back-project the masked pixels to new Gaussians in the world frame."""
+                          device="cpu", dtype=torch.float32, guessed: np.ndarray | None = None) -> GaussianMap:
+    """Back-project the masked pixels to new Gaussians in the world frame (`guessed`: H x W bool,
+    the pixels whose depth was filled in; their Gaussians are marked guessed)."""
     pts_cam = backproject(depth, intr)[mask]
     c2w = invert_pose(w2c)
     pts_world = pts_cam @ c2w[:3, :3].T + c2w[:3, 3]
     radii = depth[mask].astype(np.float64) / intr.mean_focal
     return GaussianMap.from_points(pts_world, color[mask], radii, frame_index, isotropic=isotropic,
-                                   opacity=config.initial_opacity, device=device, dtype=dtype)
+                                   opacity=config.initial_opacity, device=device, dtype=dtype,
+                                   guessed=None if guessed is None else guessed[mask])
 
 
 def frame_gaussians(gmap: GaussianMap, renderer, intr: Intrinsics, color, depth, w2c, t: int, config,
@@ -86,21 +96,41 @@ def frame_gaussians(gmap: GaussianMap, renderer, intr: Intrinsics, color, depth,
         mask = new_pixel_mask(depth_d, out.depth.cpu().numpy(), silhouette, config.densify)
         if config.mapping.exposure:
             color_d = unexposed(color_d, out, config.mapping.exposure_prior)
+    guessed = None
     if config.densify.hole_fill > 0:
         filled = filled_depth(depth_d, config.densify.hole_fill)
-        mask = mask | hole_pixel_mask(depth_d, filled, silhouette, config.densify)
+        guessed = hole_pixel_mask(depth_d, filled, silhouette, config.densify)
+        mask = mask | guessed
         depth_d = filled
     return gaussians_from_pixels(color_d, depth_d, mask, intr, w2c, t, config.densify, config.isotropic,
-                                 device=device, dtype=dtype)
+                                 device=device, dtype=dtype, guessed=guessed)
 
 
-def unexposed(color: np.ndarray, rendered, prior: float) -> np.ndarray:
-    """The frame's colours brought to the map's exposure (mapping.exposure): the inverse of the
-    frame's gain and offset fitted against the map's render where it covers the frame, so new
-    Gaussians start at the exposure the map keeps."""
-    from .mapping import exposure_fit
-
-    observed = torch.as_tensor(color, dtype=rendered.color.dtype, device=rendered.color.device)
-    covered = rendered.alpha.reshape(observed.shape[:2]) > 0.5
-    gain, offset = exposure_fit(rendered.color, observed, covered, prior)
-    return ((observed - offset) / gain.clamp(min=0.1)).clamp(0, 1).cpu().numpy().astype(color.dtype)
+def check_guessed(gmap: GaussianMap, depth: np.ndarray, intr: Intrinsics, w2c: np.ndarray, carve: bool = True,
+                  tolerance: float = CONFIRM_TOLERANCE) -> tuple[int, int]:
+    """Frame depth (H x W at `intr`, pose w2c) against the guessed Gaussians whose centres project
+    into it: where it measured a depth within `tolerance` (relative) of the centre's, the Gaussian is
+    confirmed (its mark cleared); with `carve`, where it measured a depth beyond that (the frame sees
+    through the guess), it is removed. A surface in front of it, or no depth, decides nothing.
+    Returns (confirmed, removed)."""
+    index = torch.nonzero(gmap.guessed).flatten()
+    if index.numel() == 0:
+        return 0, 0
+    means = gmap.params["means"].detach()[index.to(gmap.device)].cpu().numpy().astype(np.float64)
+    cam = means @ np.asarray(w2c)[:3, :3].T + np.asarray(w2c)[:3, 3]
+    z = cam[:, 2]
+    ahead = z > 1e-6
+    uv = np.rint(project(np.where(ahead[:, None], cam, 1.0), intr)).astype(np.int64)
+    inside = ahead & (uv[:, 0] >= 0) & (uv[:, 0] < intr.width) & (uv[:, 1] >= 0) & (uv[:, 1] < intr.height)
+    measured = np.zeros(len(z))
+    measured[inside] = depth[uv[inside, 1], uv[inside, 0]]
+    valid = inside & (measured > 0)
+    agree = valid & (np.abs(measured - z) <= tolerance * np.maximum(measured, 1e-6))
+    behind = valid & (measured - z > tolerance * measured) if carve else np.zeros_like(valid)
+    if agree.any():
+        gmap.guessed[index[torch.from_numpy(agree)]] = False
+    if behind.any():
+        keep = torch.ones(len(gmap), dtype=torch.bool)
+        keep[index[torch.from_numpy(behind)]] = False
+        gmap.prune(keep)
+    return int(agree.sum()), int(behind.sum())

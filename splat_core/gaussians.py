@@ -7,7 +7,10 @@ Parameters are stored raw (before activation), as in 3DGS and SplaTAM:
     logit_opacities  N      opacity = sigmoid(logit)
     log_scales       N x 1  (isotropic) or N x 3 (anisotropic); scale = exp(log_scale)
 `birth_frame` (N, int64) is the frame index at which each Gaussian was created; the viewer uses
-it to show the map as it was at a keyframe.
+it to show the map as it was at a keyframe. `guessed` (N, bool) marks a Gaussian placed where the
+frame had no depth (densify.hole_fill: at a depth guessed from its neighbours) until a later
+frame's depth confirms it (densify.check_guessed); tracking may leave guessed Gaussians out
+(densify.hole_fill_tracked).
 """
 
 from __future__ import annotations
@@ -58,12 +61,14 @@ class Gaussians:
 class GaussianMap:
     """The optimisable Gaussian map. Append and prune keep an Adam optimiser's state aligned."""
 
-    def __init__(self, means, colors, rotations, logit_opacities, log_scales, birth_frame):
+    def __init__(self, means, colors, rotations, logit_opacities, log_scales, birth_frame, guessed=None):
         self.params = {
             name: torch.nn.Parameter(t.detach().clone().contiguous())
             for name, t in zip(PARAM_NAMES, (means, colors, rotations, logit_opacities, log_scales))
         }
         self.birth_frame = torch.as_tensor(birth_frame, dtype=torch.int64).clone()
+        self.guessed = torch.zeros(len(self.birth_frame), dtype=torch.bool) if guessed is None \
+            else torch.as_tensor(guessed, dtype=torch.bool).clone().reshape(-1)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -74,8 +79,9 @@ class GaussianMap:
 
     @classmethod
     def from_points(cls, points, colors, radii, frame_index: int, isotropic: bool = True,
-                    opacity: float = 0.5, device="cpu", dtype=torch.float32) -> "GaussianMap":
-        """New Gaussians at world `points` with `colors` and radius `radii` (metres), identity rotation."""
+                    opacity: float = 0.5, device="cpu", dtype=torch.float32, guessed=None) -> "GaussianMap":
+        """New Gaussians at world `points` with `colors` and radius `radii` (metres), identity rotation
+        (`guessed`: N bools, the Gaussians whose depth was guessed; None: none)."""
         pts = torch.as_tensor(np.asarray(points), dtype=dtype, device=device).reshape(-1, 3)
         n = pts.shape[0]
         col = torch.as_tensor(np.asarray(colors), dtype=dtype, device=device).reshape(n, 3)
@@ -84,7 +90,8 @@ class GaussianMap:
         rot[:, 0] = 1.0
         logit = torch.full((n,), float(np.log(opacity / (1.0 - opacity))), dtype=dtype, device=device)
         scales = log_r if isotropic else log_r.expand(n, 3)
-        return cls(pts, col, rot, logit, scales, torch.full((n,), int(frame_index), dtype=torch.int64))
+        return cls(pts, col, rot, logit, scales, torch.full((n,), int(frame_index), dtype=torch.int64),
+                   None if guessed is None else torch.as_tensor(np.asarray(guessed), dtype=torch.bool).reshape(n))
 
     # ------------------------------------------------------------------ access
     def __len__(self) -> int:
@@ -137,7 +144,7 @@ class GaussianMap:
         n = len(self)
         values = [self.params[name].detach() for name in PARAM_NAMES]
         values[PARAM_NAMES.index("log_scales")] = values[PARAM_NAMES.index("log_scales")].expand(n, 3)
-        return GaussianMap(*values, self.birth_frame)
+        return GaussianMap(*values, self.birth_frame, self.guessed)
 
     # ------------------------------------------------------------------ editing
     def append(self, other: "GaussianMap", optimizer: torch.optim.Optimizer | None = None) -> None:
@@ -149,6 +156,7 @@ class GaussianMap:
             self._replace(name, torch.cat([self.params[name].detach(), extra]), optimizer,
                           lambda s: torch.cat([s, torch.zeros_like(extra)]))
         self.birth_frame = torch.cat([self.birth_frame, other.birth_frame])
+        self.guessed = torch.cat([self.guessed, other.guessed])
 
     def prune(self, keep: torch.Tensor, optimizer: torch.optim.Optimizer | None = None) -> int:
         """Keep only Gaussians where `keep` is True; returns how many were removed."""
@@ -159,6 +167,7 @@ class GaussianMap:
         for name in PARAM_NAMES:
             self._replace(name, self.params[name].detach()[keep], optimizer, lambda s: s[keep])
         self.birth_frame = self.birth_frame[keep.cpu()]
+        self.guessed = self.guessed[keep.cpu()]
         return removed
 
     def _replace(self, name, value, optimizer, edit_state) -> None:
@@ -177,12 +186,16 @@ class GaussianMap:
 
     # ------------------------------------------------------------------ serialisation
     def to_numpy(self) -> dict[str, np.ndarray]:
-        """Copies of the parameters and birth frames as numpy arrays."""
+        """Copies of the parameters and birth frames (and `guessed` where any is) as numpy arrays."""
         out = {n: a.copy() for n, a in self.tensors(detach=True).to_arrays().items()}
         out["birth_frame"] = self.birth_frame.cpu().numpy().copy()
+        if bool(self.guessed.any()):
+            out["guessed"] = self.guessed.cpu().numpy().copy()
         return out
 
     @classmethod
     def from_numpy(cls, arrays: dict, device="cpu", dtype=torch.float32) -> "GaussianMap":
         t = lambda a: torch.as_tensor(np.asarray(a), dtype=dtype, device=device)  # noqa: E731
-        return cls(*(t(arrays[n]) for n in PARAM_NAMES), torch.as_tensor(arrays["birth_frame"]))
+        guessed = arrays.get("guessed")
+        return cls(*(t(arrays[n]) for n in PARAM_NAMES), torch.as_tensor(arrays["birth_frame"]),
+                   None if guessed is None else torch.as_tensor(np.asarray(guessed)))

@@ -36,7 +36,7 @@ import torch
 from .camera import Intrinsics, invert_pose, predict_constant_velocity
 from .color_fit import FitSamples
 from .config import Config
-from .densify import frame_gaussians
+from .densify import check_guessed, frame_gaussians
 from .frame import Frame
 from .gaussians import GaussianMap, Gaussians
 from .keyframes import Keyframe, KeyframeStore, is_keyframe_time
@@ -92,7 +92,7 @@ class SplaTAM(SlamState):
 
         `w2c_given` skips tracking and uses that pose (mapping with known poses)."""
         t0 = time.perf_counter()
-        t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given)
+        t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given, guessed=self.map.guessed)
         t1 = time.perf_counter()
         stats = self.map_frame(frame, w2c, t)
         loops = self.close_loops(t) if self.is_keyframe(t) else []
@@ -154,10 +154,11 @@ class SplaTAM(SlamState):
                            map_version=map_version)
 
     def track(self, frame: Frame, gaussians: Gaussians, w2c_given: np.ndarray | None = None,
-              defer_keyframe: bool = False) -> tuple[int, np.ndarray, TrackResult | None]:
+              defer_keyframe: bool = False, guessed: torch.Tensor | None = None) -> tuple[int, np.ndarray, TrackResult | None]:
         """The pose of the next frame against `gaussians`; appends it to the trajectory (a lost
         frame: the last tracked pose, see relocalise.py) and decides whether it is a keyframe
-        (`defer_keyframe`: a due keyframe is owed to the next frame instead)."""
+        (`defer_keyframe`: a due keyframe is owed to the next frame instead; `guessed`: their
+        GaussianMap.guessed marks, left out of the tracker's render)."""
         t = len(self.w2cs)
         tracked, watch = None, self.lost_tracking
         if t == 0:
@@ -173,7 +174,8 @@ class SplaTAM(SlamState):
                 w2c_before = self.w2cs[-2] if known else None
                 w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before,
                                                           self.gap_ratio(int(frame.index)) if known else 1.0)
-                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True)
+                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True,
+                                             exclude=None if self.config.densify.hole_fill_tracked else guessed)
             verdict = watch.check(t, frame, tracked, gaussians, self.w2cs[watch.good[0]], list(self.keyframes))
             for k, w2c_k in verdict.filled.items():
                 self.w2cs[k] = w2c_k
@@ -267,7 +269,11 @@ class SplaTAM(SlamState):
 
     # ------------------------------------------------------------------ steps
     def densify(self, color, depth, w2c, t) -> int:
-        """Add Gaussians where frame t sees what the map lacks (densify.py, `frame_gaussians`)."""
+        """Add Gaussians where frame t sees what the map lacks (densify.py, `frame_gaussians`), after
+        confirming the guessed Gaussians frame t's depth agrees with and removing those it sees
+        through (`check_guessed`)."""
+        if self.config.densify.hole_fill > 0:
+            check_guessed(self.map, depth, self.intrinsics, w2c, self.config.densify.hole_fill_carve)
         new = frame_gaussians(self.map, self.renderer, self.densify_intrinsics, color, depth, w2c, t, self.config,
                               device=self.device, dtype=self.dtype)
         self.map.append(new)

@@ -52,6 +52,7 @@ class MapVersion:
     birth_frame: torch.Tensor
     ready: object = None          # CUDA: an event recorded after the copy on the publishing stream
     loops: tuple = ()             # every LoopRecord so far (loop/records.py)
+    guessed: torch.Tensor | None = None   # GaussianMap.guessed (CPU), which tracking leaves out
 
     def __len__(self) -> int:
         return len(self.gaussians)
@@ -88,7 +89,7 @@ def snapshot_version(gmap: GaussianMap, number: int, frame_index: int, loops: tu
     if g.means.is_cuda:
         ready = torch.cuda.Event()
         ready.record(torch.cuda.current_stream(g.means.device))
-    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready, loops)
+    return MapVersion(number, frame_index, copy, gmap.birth_frame.clone(), ready, loops, gmap.guessed.clone())
 
 
 @dataclass

@@ -18,6 +18,9 @@ rendered by the sparse-pixel path (render_pixels): the same loss on a subset, at
 cost. The best pose is the one with the lowest loss, snapshotted *before* the step that follows it
 (the original snapshots after stepping; `compat_post_step_candidate` reproduces that).
 
+With densify.hole_fill_tracked false, Gaussians marked guessed (densify.hole_fill: a depth filled in
+where the frame measured none) are left out of every render tracking makes (`exclude`).
+
 A pose beats another with a lower loss per pixel over at least half as many pixels: a sum over
 fewer pixels is smaller without being better, and a pose that looks away from the map would
 otherwise "win" with a loss of zero.
@@ -40,6 +43,7 @@ from .frame import resize_to
 from .gaussians import Gaussians
 from .pixel_selection import choose_pixels
 from .render import Render, Renderer
+from .render.project import frustum_mask
 
 
 @dataclass
@@ -251,15 +255,16 @@ class Tracker:
 
     # -------------------------------------------------------------- one frame
     def track(self, gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, w2c_predicted: np.ndarray,
-              reuse: bool = False) -> TrackResult:
+              reuse: bool = False, exclude: torch.Tensor | None = None) -> TrackResult:
         """The pose of (colour H x W x 3, depth H x W at the tracker's intrinsics) against the map.
         reuse: the tracking of consecutive frames (SplaTAM.track), where tracking.align.reuse_render
-        may serve the alignment a render made for an earlier frame of the same map version."""
+        may serve the alignment a render made for an earlier frame of the same map version.
+        exclude: N bools, Gaussians left out (GaussianMap.guessed); None: none."""
         tc = self.config
         model = self._model if reuse and tc.align.reuse_render > 0 and tc.align.iterations > 0 else None
         if model is not None and (model.gaussians is not gaussians or model.uses >= tc.align.reuse_render):
             model = self._model = None
-        g = model.culled if model is not None else self.nearby(gaussians, w2c_predicted)
+        g = model.culled if model is not None else self.nearby(gaussians, w2c_predicted, exclude)
         observations = [self.observe(color, depth, intr) for intr, _ in self.stages]
         start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
         rival = None
@@ -305,9 +310,14 @@ class Tracker:
         return align_to_map(g, color, depth, self.intrinsics, w2c, model=model,
                             **align_options(self.config, self.intrinsics, self.renderer.near))
 
-    def nearby(self, gaussians: Gaussians, w2c: np.ndarray) -> Gaussians:
-        """The Gaussians that can appear in the frame (with a margin for the motion to come)."""
-        return self.renderer.visible(gaussians, self.intrinsics, w2c, margin=0.25)
+    def nearby(self, gaussians: Gaussians, w2c: np.ndarray, exclude: torch.Tensor | None = None) -> Gaussians:
+        """The Gaussians that can appear in the frame (with a margin for the motion to come), but
+        those `exclude` marks (N bools; one selection either way)."""
+        if exclude is None or not bool(exclude.any()):
+            return self.renderer.visible(gaussians, self.intrinsics, w2c, margin=0.25)
+        keep = frustum_mask(gaussians.means, gaussians.log_scales, self.intrinsics, np.asarray(w2c),
+                            self.renderer.near, margin=0.25)
+        return gaussians.select(keep & ~exclude.to(keep.device))
 
     def observe(self, color: np.ndarray, depth: np.ndarray, intr: Intrinsics) -> Observation:
         """The frame at `intr`, reduced to the configured pixel subset."""

@@ -76,3 +76,41 @@ def test_hole_filling_densifies_only_empty_depthless_pixels():
     expected[5:10, 5:10] = True
     assert np.array_equal(mask, expected)
     assert hole_pixel_mask(depth, filled_depth(depth, cfg.hole_fill), None, cfg).sum() == 25 + 20
+
+
+def test_hole_filled_gaussians_are_marked_guessed_until_a_frame_measures_their_depth():
+    from splat_core.config import load_config
+    from splat_core.densify import check_guessed, frame_gaussians
+    from splat_core.gaussians import GaussianMap
+    from splat_core.render import Renderer
+    f = small_source(n=1, w=80, h=60)[0]
+    depth = f.depth.copy()
+    depth[20:30, 30:40] = 0                                  # a hole in the middle of the frame
+    config = load_config(overrides={"densify": {"hole_fill": 0.1}})
+    new = frame_gaussians(GaussianMap.empty(), Renderer(), f.intrinsics, f.color, depth, np.eye(4), 0, config)
+    assert len(new) == int((f.depth > 0).sum()) and int(new.guessed.sum()) == 100
+    # Only the hole's Gaussians are guessed: their centres back-project from the hole's pixels.
+    u = np.rint(project(new.means.detach().numpy()[new.guessed.numpy()], f.intrinsics)).astype(int)
+    assert u[:, 0].min() >= 30 and u[:, 0].max() < 40 and u[:, 1].min() >= 20 and u[:, 1].max() < 30
+    # Marks travel with append, prune and the map's arrays.
+    m = GaussianMap.empty()
+    m.append(new)
+    m.prune(torch.arange(len(m)) % 2 == 0)
+    assert int(m.guessed.sum()) == 50
+    assert torch.equal(GaussianMap.from_numpy(m.to_numpy()).guessed, m.guessed)
+    assert "guessed" not in GaussianMap.from_numpy({**m.to_numpy(), "guessed": np.zeros(len(m), bool)}).to_numpy()
+    # A frame whose depth agrees confirms them; a surface in front of them, or a frame with the same
+    # hole, confirms nothing; a frame that sees through them (a depth behind) removes them.
+    before = m.guessed.clone()
+    assert check_guessed(m, depth, f.intrinsics, np.eye(4)) == (0, 0)
+    nearer = np.where(depth > 0, depth, 0.5 * f.depth).astype(np.float32)
+    assert check_guessed(m, nearer, f.intrinsics, np.eye(4)) == (0, 0) and torch.equal(m.guessed, before)
+    from splat_core.densify import filled_depth
+    agreeing = filled_depth(depth, 0.1)                      # the depth the hole was filled with
+    beyond = np.where(depth > 0, depth, 1.5 * agreeing).astype(np.float32)
+    seen_through = GaussianMap.from_numpy(m.to_numpy())
+    assert check_guessed(seen_through, beyond, f.intrinsics, np.eye(4), carve=False) == (0, 0)
+    assert check_guessed(seen_through, beyond, f.intrinsics, np.eye(4)) == (0, int(before.sum()))
+    assert len(seen_through) == len(m) - int(before.sum()) and not bool(seen_through.guessed.any())
+    assert check_guessed(m, agreeing, f.intrinsics, np.eye(4)) == (int(before.sum()), 0)
+    assert not bool(m.guessed.any()) and len(m) == len(seen_through) + int(before.sum())

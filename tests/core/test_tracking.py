@@ -173,3 +173,35 @@ def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_predictio
         assert out.start == "prediction" and _centre_error(out.w2c, truth) < 0.005, (out.start, _centre_error(out.w2c, truth))
     else:
         assert out.start == "aligned" and _centre_error(out.w2c, truth) > 0.03, (out.start, _centre_error(out.w2c, truth))
+
+
+def _with_a_panel(m, guessed: bool):
+    """`m` with an opaque panel of Gaussians 0.6 m in front of the camera over the image's left half
+    appended (marked guessed or not): a wrong depth tracking would align to."""
+    from splat_core.gaussians import GaussianMap
+    xs, ys = np.meshgrid(np.arange(-0.25, 0.0, 0.004), np.arange(-0.2, 0.2, 0.004))
+    pts = np.c_[xs.ravel(), ys.ravel(), np.full(xs.size, 0.6)]
+    panel = GaussianMap.from_points(pts, np.full((len(pts), 3), 0.9), np.full(len(pts), 0.004), 1, opacity=0.99,
+                                    guessed=np.full(len(pts), guessed))
+    out = GaussianMap(*m.tensors(detach=True).fields(), m.birth_frame, m.guessed)
+    out.append(panel)
+    return out
+
+
+def test_guessed_gaussians_stay_out_of_tracking_and_confirmed_ones_do_not():
+    m, f1, truth, start = _perturbed_tracking_case()
+    config = TrackingConfig(iterations=20)
+    track = lambda g, exclude: Tracker(config, f1.intrinsics, Renderer()).track(  # noqa: E731
+        g.tensors(detach=True), f1.color, f1.depth, start, exclude=exclude)
+    plain = track(m, None)
+    guessed = _with_a_panel(m, guessed=True)
+    assert int(guessed.guessed.sum()) > 0 and not bool(m.guessed.any())
+    left_out = track(guessed, guessed.guessed)
+    assert np.array_equal(left_out.w2c, plain.w2c) and left_out.loss == plain.loss
+    assert left_out.valid_pixels == plain.valid_pixels
+    confirmed = _with_a_panel(m, guessed=False)
+    moved = track(confirmed, confirmed.guessed)
+    assert moved.valid_pixels < plain.valid_pixels           # the panel hides the frame's left half
+    assert not np.array_equal(moved.w2c, plain.w2c)
+    # Without the marks passed, the guessed panel is rendered like any other Gaussian.
+    assert np.array_equal(track(guessed, None).w2c, moved.w2c)
