@@ -181,7 +181,7 @@ def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer, min_improvemen
                    prior: float = 0.0) -> dict:
     """Fit the gain and offset over `views` (each with .color H x W x 3 at `intrinsics`, .w2c and
     .frame_index; pulled towards identity by `prior`, ColorFit.solve) and apply them to `gmap`'s colours in place, if on held-out views the fit lowers
-    the squared error by at least `min_improvement` (a fraction; None: always applied). Returns
+    the squared error by at least `min_improvement` (a fraction; None or 0: always applied). Returns
     metrics.json's record: gain and offset applied (identity when not kept), fitted_gain and
     fitted_offset, held_out_ratio (ColorFit.held_out_ratio), kept, views (how many) and frames
     (their indices)."""
@@ -192,7 +192,7 @@ def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer, min_improvemen
             fit.add(out.color, out.alpha, torch.as_tensor(np.asarray(view.color)))
         fitted_gain, fitted_offset = fit.solve(prior=prior)
         ratio = fit.held_out_ratio(prior)
-        kept = min_improvement is None or ratio <= 1.0 - min_improvement
+        kept = min_improvement is None or min_improvement <= 0 or ratio <= 1.0 - min_improvement
         gain, offset = (fitted_gain, fitted_offset) if kept else (np.ones(3), np.zeros(3))
         if kept:
             colors = gmap.params["colors"]

@@ -165,7 +165,7 @@ class MappingConfig:
     final_color_fit_min_improvement: float = setting(
         0.08, "that fit is applied only if, fitted on half of its frames, it lowers the squared colour error on "
         "the other half (and the other way round) by at least this fraction; else the map is left as it is "
-        "(color_fit.py)", unit="fraction",
+        "(color_fit.py); 0: applied without that test", unit="fraction",
         trades="smaller: smaller corrections kept, which on a capture of one exposure cost the evaluated "
         "frames up to 0.16 dB (SUN3D); larger: only large exposure corrections (7-Scenes) kept")
     final_color_fit_prior: float = setting(

@@ -139,6 +139,12 @@ def test_a_map_of_the_right_colours_is_left_as_it_is_and_a_wrongly_exposed_one_i
                                + torch.tensor(record["offset"], dtype=before.dtype))
 
 
+def test_the_cpu_preset_fits_and_keeps_the_fit_only_past_the_held_out_test():
+    mc = load_config("cpu").mapping
+    assert mc.final_color_fit and mc.final_color_fit_min_improvement > 0 and mc.final_color_fit_prior > 0
+    assert load_config("live").mapping.final_color_fit
+
+
 def test_the_kept_frames_are_never_evaluated_and_stay_bounded():
     for every in (1, 2, 3, 5, 10):
         kept = [t for t in range(200) if is_fit_frame(t, every)]
@@ -173,9 +179,12 @@ def test_an_evaluated_frame_never_enters_the_fit():
 
 
 def _config(fit: bool = True):
-    # render metrics on frames 0, 1, 3, 5: the fit keeps frames 2 and 4
+    # render metrics on frames 0, 1, 3, 5: the fit keeps frames 2 and 4; least squares, applied
+    # without the held-out test (two frames of a synthetic scene would not pass it)
     return load_config("cpu", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 2,
-                                         "mapping": {"first_frame_iterations": 20, "final_color_fit": fit}})
+                                         "mapping": {"first_frame_iterations": 20, "final_color_fit": fit,
+                                                     "final_color_fit_min_improvement": 0.0,
+                                                     "final_color_fit_prior": 0.0}})
 
 
 def _source():
