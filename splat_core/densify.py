@@ -134,3 +134,15 @@ def check_guessed(gmap: GaussianMap, depth: np.ndarray, intr: Intrinsics, w2c: n
         keep[index[torch.from_numpy(behind)]] = False
         gmap.prune(keep)
     return int(agree.sum()), int(behind.sum())
+
+
+def unexposed(color: np.ndarray, rendered, prior: float) -> np.ndarray:
+    """The frame's colours brought to the map's exposure (mapping.exposure): the inverse of the
+    frame's gain and offset fitted against the map's render where it covers the frame, so new
+    Gaussians start at the exposure the map keeps."""
+    from .mapping import exposure_fit
+
+    observed = torch.as_tensor(color, dtype=rendered.color.dtype, device=rendered.color.device)
+    covered = rendered.alpha.reshape(observed.shape[:2]) > 0.5
+    gain, offset = exposure_fit(rendered.color, observed, covered, prior)
+    return ((observed - offset) / gain.clamp(min=0.1)).clamp(0, 1).cpu().numpy().astype(color.dtype)
