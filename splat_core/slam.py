@@ -92,7 +92,7 @@ class SplaTAM(SlamState):
 
         `w2c_given` skips tracking and uses that pose (mapping with known poses)."""
         t0 = time.perf_counter()
-        t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given, guessed=self.map.guessed)
+        t, w2c, tracked = self.track(frame, self.map.tensors(detach=True), w2c_given, False, self.map.guessed)
         t1 = time.perf_counter()
         stats = self.map_frame(frame, w2c, t)
         loops = self.close_loops(t) if self.is_keyframe(t) else []
@@ -174,8 +174,9 @@ class SplaTAM(SlamState):
                 w2c_before = self.w2cs[-2] if known else None
                 w2c_predicted = predict_constant_velocity(self.w2cs[-1], w2c_before,
                                                           self.gap_ratio(int(frame.index)) if known else 1.0)
-                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True,
-                                             exclude=None if self.config.densify.hole_fill_tracked else guessed)
+                exclude = None if self.config.densify.hole_fill_tracked or guessed is None else guessed
+                more = {} if exclude is None else {"exclude": exclude}
+                tracked = self.tracker.track(gaussians, frame.color, frame.depth, w2c_predicted, reuse=True, **more)
             verdict = watch.check(t, frame, tracked, gaussians, self.w2cs[watch.good[0]], list(self.keyframes))
             for k, w2c_k in verdict.filled.items():
                 self.w2cs[k] = w2c_k

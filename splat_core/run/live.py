@@ -157,8 +157,7 @@ class LiveEngine(SlamReads):
         newest published map, under the pose lock."""
         with self._poses:
             version = self.slam.latest_version()
-            return (version, *self.slam.track(frame, version.gaussians, w2c_given, defer_keyframe,
-                                              guessed=version.guessed))
+            return (version, *self.slam.track(frame, version.gaussians, w2c_given, defer_keyframe, version.guessed))
 
     def _mapper_behind(self, t: int) -> bool:
         """live.pace_keyframes: frame t may not become a keyframe now (a due one is deferred to the

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from splat_core.camera import (invert_pose, pose_matrix, project, quat_to_rotmat_np)
@@ -114,3 +115,31 @@ def test_hole_filled_gaussians_are_marked_guessed_until_a_frame_measures_their_d
     assert len(seen_through) == len(m) - int(before.sum()) and not bool(seen_through.guessed.any())
     assert check_guessed(m, agreeing, f.intrinsics, np.eye(4)) == (int(before.sum()), 0)
     assert not bool(m.guessed.any()) and len(m) == len(seen_through) + int(before.sum())
+
+
+@pytest.mark.parametrize("tracked", [True, False])
+def test_splatam_hands_the_guessed_marks_to_tracking_only_when_they_are_left_out(tracked):
+    import dataclasses
+    from splat_core.config import load_config
+    from splat_core.slam import SplaTAM
+    src = small_source(n=3, w=80, h=60)
+    config = load_config("cpu", overrides={"resolution": [80, 60], "densify": {"hole_fill": 0.1,
+                                                                                "hole_fill_tracked": tracked},
+                                            "mapping": {"first_frame_iterations": 5, "iterations": 2}})
+    slam = SplaTAM(config, src[0].intrinsics, total_frames=3)
+    seen, track = [], slam.tracker.track
+
+    def spy(gaussians, color, depth, w2c, reuse=False, **kw):
+        seen.append(kw.get("exclude"))
+        return track(gaussians, color, depth, w2c, reuse, **kw)
+    slam.tracker.track = spy
+    for i in range(3):
+        frame = src[i]
+        depth = frame.depth.copy()
+        depth[20:30, 30:40] = 0                  # the same hole in every frame: its Gaussians stay guessed
+        slam.process(dataclasses.replace(frame, depth=depth))
+    assert int(slam.map.guessed.sum()) > 0 and len(seen) == 2
+    if tracked:
+        assert all(e is None for e in seen)
+    else:
+        assert all(e is not None and e.dtype == torch.bool and int(e.sum()) > 0 for e in seen)
