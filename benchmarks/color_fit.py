@@ -2,7 +2,11 @@
 applied to each run folder's map, and the PSNR of record (every eval_every-th frame at the estimated
 pose, every pixel, as metrics.json's psnr) before and after.
 
-    python benchmarks/color_fit.py RUN [RUN ...] [--json]
+    python benchmarks/color_fit.py RUN [RUN ...] [--json] [--min-improvement F | --always]
+
+The held-out test (mapping.final_color_fit_min_improvement; the run's setting unless
+--min-improvement gives another) decides whether the fit is applied; --always applies it
+regardless; --always --prior 0 is the fit before both (least squares, always applied).
 
 The fit runs after a run's last frame (SplaTAM.finish) over the frames kept for it, none of them
 an evaluated frame (color_fit.FitSamples: re-read here from the capture) and moves no pose (tests/core/test_color_fit.py: a run with the
@@ -75,7 +79,7 @@ def colors_before_fit(path, run):
     return (colors - torch.tensor(record["offset"], dtype=colors.dtype)) / torch.tensor(record["gain"], dtype=colors.dtype)
 
 
-def measure(path) -> dict:
+def measure(path, min_improvement="run", prior=None) -> dict:
     from splat_core.color_fit import fit_map_colors
     from splat_core.refine.run_data import load_run_data, open_run_capture
     from splat_core.render import Renderer
@@ -90,7 +94,11 @@ def measure(path) -> dict:
     start = time.perf_counter()
     samples = fit_samples(run, source)
     lost = lambda k: run.records[k].get("lost")  # noqa: E731
-    record = fit_map_colors(run.map, samples.views(run.w2cs, lost), samples.intrinsics, renderer)
+    if min_improvement == "run":
+        min_improvement = run.config.mapping.final_color_fit_min_improvement
+    prior = run.config.mapping.final_color_fit_prior if prior is None else prior
+    record = fit_map_colors(run.map, samples.views(run.w2cs, lost), samples.intrinsics, renderer, min_improvement,
+                            prior)
     seconds = time.perf_counter() - start
     after, _ = run_psnr(run, source, renderer)
     return dict(run=str(path), psnr_before=before, psnr_after=after, fit_seconds=seconds, **record)
@@ -100,15 +108,23 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--min-improvement", type=float, default=None,
+                    help="the held-out test's threshold (default: the run's mapping.final_color_fit_min_improvement)")
+    ap.add_argument("--always", action="store_true", help="apply the fit without the held-out test")
+    ap.add_argument("--prior", type=float, default=None,
+                    help="the fit's pull towards identity (default: the run's mapping.final_color_fit_prior)")
     args = ap.parse_args(argv)
-    rows = [measure(p) for p in args.runs]
+    threshold = None if args.always else "run" if args.min_improvement is None else args.min_improvement
+    rows = [measure(p, threshold, args.prior) for p in args.runs]
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
     for r in rows:
         print(f"{r['run']}: PSNR {r['psnr_before']:.2f} -> {r['psnr_after']:.2f} dB; gain "
               f"{np.round(r['gain'], 3).tolist()} offset {np.round(r['offset'], 3).tolist()} over "
-              f"{r['views']} frames kept for it, none evaluated ({r['fit_seconds']:.1f} s, reading them included)")
+              f"{r['views']} frames kept for it, none evaluated ({r['fit_seconds']:.1f} s, reading them included); "
+              f"held-out error ratio {r['held_out_ratio']:.3f}: {'kept' if r['kept'] else 'not kept'} "
+              f"(fitted gain {np.round(r['fitted_gain'], 3).tolist()} offset {np.round(r['fitted_offset'], 3).tolist()})")
     return 0
 
 

@@ -162,6 +162,16 @@ class MappingConfig:
                                     "on a capture without exposure changes the fit is near identity; up to 64 "
                                     "frames at half resolution kept (57.6 kB each at 320x240) and rendered once "
                                     "at the end")
+    final_color_fit_min_improvement: float = setting(
+        0.08, "that fit is applied only if, fitted on half of its frames, it lowers the squared colour error on "
+        "the other half (and the other way round) by at least this fraction; else the map is left as it is "
+        "(color_fit.py); 0: applied without that test", unit="fraction",
+        trades="smaller: smaller corrections kept, which on a capture of one exposure cost the evaluated "
+        "frames up to 0.16 dB (SUN3D); larger: only large exposure corrections (7-Scenes) kept")
+    final_color_fit_prior: float = setting(
+        0.03, "weight of identity (gain 1, offset 0) in that fit, per pixel of its frames (0: least squares)",
+        unit="fraction", trades="larger: smaller corrections (the fit's frames are not the map's training "
+        "views and ask for more than the evaluated frames need)")
 
 
 @dataclass

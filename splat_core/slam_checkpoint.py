@@ -41,7 +41,9 @@ class SlamState:
         if not views:
             return None
         self._colors_before_fit = self.map.params["colors"].detach().clone()
-        self.color_fit = fit_map_colors(self.map, views, self.fit_samples.intrinsics, self.renderer)
+        self.color_fit = fit_map_colors(self.map, views, self.fit_samples.intrinsics, self.renderer,
+                                        self.config.mapping.final_color_fit_min_improvement,
+                                        self.config.mapping.final_color_fit_prior)
         self.publish(self.frames_tracked - 1)
         return self.color_fit
 

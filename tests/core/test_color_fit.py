@@ -74,6 +74,77 @@ def test_fit_is_identity_when_the_map_already_matches_and_without_views():
     torch.testing.assert_close(gmap.params["colors"].detach(), before, atol=1e-5, rtol=0)
 
 
+def _noisy_views(gmap, renderer, gain, seed=0, frames=(2, 7, 12, 17)):
+    """Views around the two walls whose colours are the map's render x gain plus pixel noise (sd 0.05)."""
+    rng = np.random.default_rng(seed)
+    views = []
+    for i, k in enumerate(frames):
+        c2w = oblique_camera() if i % 2 else np.eye(4)
+        c2w = c2w.copy()
+        c2w[:3, 3] += 0.02 * i
+        w2c = invert_pose(c2w)
+        with torch.no_grad():
+            out = renderer.render_visible(gmap.tensors(detach=True), INTR, w2c)
+        color = out.color.numpy() * gain + rng.normal(0, 0.05, out.color.shape)
+        views.append(SimpleNamespace(color=color, w2c=w2c, frame_index=k))
+    return views
+
+
+def test_the_held_out_ratio_scores_each_half_s_fit_on_the_other_half():
+    rng = np.random.default_rng(5)
+    fit, rows = ColorFit(), []
+    for k in range(5):
+        r, a = rng.uniform(0, 1, (10, 12, 3)), rng.uniform(0.5, 1, (10, 12))
+        o = (0.8 + 0.05 * k) * r + 0.05 * a[..., None] + rng.normal(0, 0.05, r.shape)
+        fit.add(torch.as_tensor(r), torch.as_tensor(a), torch.as_tensor(o))
+        rows.append((r.reshape(-1, 3), a.reshape(-1), o.reshape(-1, 3)))
+    fitted = identity = 0.0
+    for train, test in (((0, 2, 4), (1, 3)), ((1, 3), (0, 2, 4))):
+        r, a, o = (np.concatenate(x) for x in zip(*[rows[i] for i in train]))
+        rt, at, ot = (np.concatenate(x) for x in zip(*[rows[i] for i in test]))
+        for c in range(3):
+            (g, b), *_ = np.linalg.lstsq(np.c_[r[:, c], a], o[:, c], rcond=None)
+            fitted += float(((g * rt[:, c] + b * at - ot[:, c]) ** 2).sum())
+            identity += float(((rt[:, c] - ot[:, c]) ** 2).sum())
+    assert fit.held_out_ratio() == pytest.approx(fitted / identity, rel=1e-9)
+    # The prior pulls the fit towards identity: a weight per pixel far above the data's leaves it there.
+    gain, offset = fit.solve(prior=1e6)
+    np.testing.assert_allclose(gain, 1.0, atol=1e-4)
+    np.testing.assert_allclose(offset, 0.0, atol=1e-4)
+    light = fit.solve(prior=0.03)[0]
+    assert np.all(np.abs(light - 1.0) < np.abs(fit.solve()[0] - 1.0))
+    assert ColorFit().held_out_ratio() == 1.0
+
+
+def test_a_map_of_the_right_colours_is_left_as_it_is_and_a_wrongly_exposed_one_is_corrected():
+    renderer = Renderer()
+    right = two_walls()
+    before = right.params["colors"].detach().clone()
+    record = fit_map_colors(right, _noisy_views(right, renderer, 1.0), INTR, renderer, min_improvement=0.05)
+    # The fit of noise alone is near identity, and held out it does not beat the map: not applied.
+    np.testing.assert_allclose(record["fitted_gain"], 1.0, atol=0.05)
+    assert not record["kept"] and record["held_out_ratio"] > 0.95
+    assert record["gain"] == [1.0, 1.0, 1.0] and record["offset"] == [0.0, 0.0, 0.0]
+    assert torch.equal(right.params["colors"].detach(), before)
+    # A slight, consistent mismatch (1 %) does not pass the test either.
+    slight = two_walls()
+    assert not fit_map_colors(slight, _noisy_views(slight, renderer, 0.99), INTR, renderer, 0.05)["kept"]
+    # Frames 30 % brighter than the map: corrected.
+    dark = two_walls()
+    record = fit_map_colors(dark, _noisy_views(dark, renderer, 1.3), INTR, renderer, min_improvement=0.05)
+    assert record["kept"] and record["held_out_ratio"] < 0.5
+    np.testing.assert_allclose(record["gain"], 1.3, atol=0.03)
+    np.testing.assert_allclose(record["offset"], 0.0, atol=0.02)
+    torch.testing.assert_close(dark.params["colors"].detach(), before * torch.tensor(record["gain"], dtype=before.dtype)
+                               + torch.tensor(record["offset"], dtype=before.dtype))
+
+
+def test_the_cpu_preset_fits_and_keeps_the_fit_only_past_the_held_out_test():
+    mc = load_config("cpu").mapping
+    assert mc.final_color_fit and mc.final_color_fit_min_improvement > 0 and mc.final_color_fit_prior > 0
+    assert load_config("live").mapping.final_color_fit
+
+
 def test_the_kept_frames_are_never_evaluated_and_stay_bounded():
     for every in (1, 2, 3, 5, 10):
         kept = [t for t in range(200) if is_fit_frame(t, every)]
@@ -108,9 +179,12 @@ def test_an_evaluated_frame_never_enters_the_fit():
 
 
 def _config(fit: bool = True):
-    # render metrics on frames 0, 1, 3, 5: the fit keeps frames 2 and 4
+    # render metrics on frames 0, 1, 3, 5: the fit keeps frames 2 and 4; least squares, applied
+    # without the held-out test (two frames of a synthetic scene would not pass it)
     return load_config("cpu", overrides={"resolution": [80, 60], "checkpoint_every": 0, "eval_every": 2,
-                                         "mapping": {"first_frame_iterations": 20, "final_color_fit": fit}})
+                                         "mapping": {"first_frame_iterations": 20, "final_color_fit": fit,
+                                                     "final_color_fit_min_improvement": 0.0,
+                                                     "final_color_fit_prior": 0.0}})
 
 
 def _source():
