@@ -125,11 +125,6 @@ class MappingConfig:
                                trades="larger: the map stays consistent with more of the past; the current frame "
                                "gets fewer of the iterations")
     map_every: int = setting(1, "map every n-th frame", unit="frames", trades="larger: faster, the map lags")
-    final_iterations: int = setting(0, "after the last frame, this many mapping iterations per keyframe over the "
-                                    "keyframes at their final poses, in windows of window_size keyframes "
-                                    "(0: none)", unit="iterations per keyframe",
-                                    trades="more: a better final map, a longer end of the run (its time counts "
-                                    "in the last frame's)")
     depth_weight: float = setting(1.0, "weight of the depth L1 term in the mapping loss")
     color_weight: float = setting(0.5, "weight of the colour term in the mapping loss")
     ssim_weight: float = setting(0.2, "colour term = (1-w) L1 + w (1 - SSIM)", unit="fraction")

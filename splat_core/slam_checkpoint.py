@@ -28,7 +28,6 @@ class SlamState:
     """SplaTAM's checkpoint and finish (its attributes: slam.py)."""
 
     color_fit: dict | None = None                 # the end-of-run fit's record, once finish() made it
-    final_pass_done: bool = False                 # mapping.final_iterations ran on this map
     _colors_before_fit: torch.Tensor | None = None
 
     def finish(self) -> dict | None:
@@ -36,7 +35,6 @@ class SlamState:
         colours given the gain and offset per channel that best fit its renders to the frames kept
         for it, none of them evaluated (color_fit.py), and the fitted map published. Returns the
         fit's record (None: off, or no frame kept or no Gaussian); a second call returns the first's."""
-        self.final_pass()
         if self.color_fit is not None or self.fit_samples is None or not len(self.map):
             return self.color_fit
         views = self.fit_samples.views(self.w2cs, self.lost_tracking.reason)
@@ -46,27 +44,6 @@ class SlamState:
         self.color_fit = fit_map_colors(self.map, views, self.fit_samples.intrinsics, self.renderer)
         self.publish(self.frames_tracked - 1)
         return self.color_fit
-
-    def final_pass(self) -> int:
-        """mapping.final_iterations: that many mapping iterations per keyframe over the keyframes at
-        their final poses (after every loop correction), in windows of `window_size` consecutive
-        keyframes, each drawing its views at random as a frame's mapping does; once per map. Returns
-        the iterations run."""
-        per_keyframe = self.config.mapping.final_iterations
-        if self.final_pass_done or per_keyframe <= 0 or not len(self.map):
-            return 0
-        kfs = list(self.keyframes)
-        size = max(1, self.config.mapping.window_size)
-        done = 0
-        for start in range(0, len(kfs), size):
-            window = [self.keyframe_view(kf) for kf in kfs[start:start + size]]
-            self.prune()
-            self.optimise(window, iterations=per_keyframe * len(window))
-            done += per_keyframe * len(window)
-        self.final_pass_done = True
-        if done:
-            self.publish(self.frames_tracked - 1)
-        return done
 
     def tracking_state(self) -> tuple[str, str]:
         """The tracking side's state (the tracker's pixel choice, the lost-tracking watch) as text."""
@@ -86,8 +63,6 @@ class SlamState:
         arrays["keyframe_marks"] = np.array(self.keyframe_marks[:len(arrays["w2cs"])], dtype=np.int8)
         arrays["scene_radius"] = np.array(np.nan if self.scene_radius is None else self.scene_radius)
         arrays["rng_state"] = np.array(json.dumps(self.rng.bit_generator.state))
-        if self.final_pass_done:
-            arrays["final_pass_done"] = np.array(True)
         tracker_state, lost_state = self.tracking_state() if tracking_state is None else tracking_state
         arrays["tracker_state"] = np.array(tracker_state)
         arrays["lost_state"] = np.array(lost_state)
@@ -104,7 +79,6 @@ class SlamState:
             gaussians["colors"] = arrays["fit_colors_before"]
         self.map = GaussianMap.from_numpy(gaussians, device=self.device, dtype=self.dtype)
         self.color_fit, self._colors_before_fit = None, None
-        self.final_pass_done = bool(arrays.get("final_pass_done", False))
         self.keyframes.load_arrays(arrays, keyframe_file)
         if self.fit_samples is not None:
             self.fit_samples.load_arrays(arrays)
