@@ -180,8 +180,9 @@ class FitSamples:
 def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer, min_improvement: float | None = None,
                    prior: float = 0.0) -> dict:
     """Fit the gain and offset over `views` (each with .color H x W x 3 at `intrinsics`, .w2c and
-    .frame_index; pulled towards identity by `prior`, ColorFit.solve) and apply them to `gmap`'s colours in place, if on held-out views the fit lowers
-    the squared error by at least `min_improvement` (a fraction; None or 0: always applied). Returns
+    .frame_index; pulled towards identity by `prior`, ColorFit.solve) and apply them to `gmap`'s
+    colours in place if, on held-out views, the fit lowers the squared error by at least
+    `min_improvement` (a fraction; None or 0: always applied). Returns
     metrics.json's record: gain and offset applied (identity when not kept), fitted_gain and
     fitted_offset, held_out_ratio (ColorFit.held_out_ratio), kept, views (how many) and frames
     (their indices)."""
