@@ -112,10 +112,16 @@ def squared_error(sums: np.ndarray, gain: np.ndarray, offset: np.ndarray) -> np.
     return gain * gain * rr + 2 * gain * offset * ra + offset * offset * aa - 2 * gain * ro - 2 * offset * ao + oo
 
 
+def _midway(t: int, eval_every: int) -> tuple[int, int]:
+    """(the ordinal of the gap between evaluated frames that frame t falls midway in, and whether it does)."""
+    every = max(1, eval_every)
+    ordinal, rest = divmod(t + 1 + every // 2, every)
+    return ordinal, rest == 0
+
+
 def is_fit_frame(t: int, eval_every: int) -> bool:
     """Processed frame t is kept for the fit: midway between two evaluated frames, never one."""
-    every = max(1, eval_every)
-    return (t + 1 + every // 2) % every == 0 and not is_evaluated(t, every)
+    return _midway(t, eval_every)[1] and not is_evaluated(t, eval_every)
 
 
 class FitSamples:
@@ -137,7 +143,7 @@ class FitSamples:
         return [t for t, _ in self.kept]
 
     def _ordinal(self, t: int) -> int:
-        return (t + 1 + max(1, self.eval_every) // 2) // max(1, self.eval_every)
+        return _midway(t, self.eval_every)[0]
 
     def offer(self, t: int, color: np.ndarray) -> None:
         """Frame t's colour (H x W x 3 in [0, 1], the working resolution), kept if it is a fit frame."""

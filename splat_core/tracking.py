@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from .align import align_to_map
-from .camera import Intrinsics, pose_matrix, quat_to_rotmat_np, rotmat_to_quat, w2c_from_quat_trans
+from .camera import Intrinsics, invert_pose, pose_matrix, quat_to_rotmat_np, rotmat_to_quat, w2c_from_quat_trans
 from .config import TrackingConfig
 from .frame import resize_to
 from .gaussians import Gaussians
@@ -232,8 +232,8 @@ def moved_beyond(w2c_a: np.ndarray, w2c_b: np.ndarray, distance: float) -> bool:
     """The two poses' camera centres more than `distance` apart (0: never)."""
     if not distance > 0:
         return False
-    centre = lambda w2c: -w2c[:3, :3].T @ w2c[:3, 3]   # noqa: E731
-    return bool(np.linalg.norm(centre(np.asarray(w2c_a)) - centre(np.asarray(w2c_b))) > distance)
+    centres = [invert_pose(np.asarray(w2c))[:3, 3] for w2c in (w2c_a, w2c_b)]
+    return bool(np.linalg.norm(centres[0] - centres[1]) > distance)
 
 
 class Tracker:
