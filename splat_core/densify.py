@@ -9,7 +9,8 @@ map is empty get one too, at the farthest valid depth within hole_fill x the ima
 (`filled_depth`; farthest, as a depth shadow beside an edge belongs to the background): a screen
 or a black, shiny patch the depth camera misses would otherwise stay black in every render.
 With densify.hole_fill_at_edge only the band along the image's edge is filled (where a depth
-camera registered to colour has no depth: SUN3D's right 18 columns), not holes inside the image.
+camera registered to colour has no depth: SUN3D's right 18 columns and top 7 rows), not holes
+inside the image.
 New Gaussians sit on the back-projected pixel, with a one-pixel
 radius (depth / mean focal length at the densification resolution) and opacity 0.5.
 """
