@@ -3,7 +3,7 @@ splat_core/final_holes.py, then splat_core/color_fit.py) applied to each run fol
 before them, and the PSNR of record (every eval_every-th frame at the estimated pose, every pixel,
 as metrics.json's psnr) of each variant, on the same map and poses.
 
-    python benchmarks/final_holes.py RUN [RUN ...] [--fraction 0.05] [--passes 2] [--json]
+    python benchmarks/final_holes.py RUN [RUN ...] [--fraction 0.05] [--opacity 0.95] [--passes 0] [--json]
 
 Variants: `fit` (the colour fit alone: the `cpu` preset before this pass), `holes+fit` (the hole
 fill, then the colour fit: what SplaTAM.finish does with the setting on), `holes` (the hole fill
@@ -56,7 +56,7 @@ def apply(variant: str, run, views, intrinsics, renderer, config) -> dict:
     return out
 
 
-def measure(path, fraction: float, passes: int, variants: list[str]) -> dict:
+def measure(path, fraction: float, opacity: float, passes: int, variants: list[str]) -> dict:
     import dataclasses
 
     from splat_core.refine.run_data import load_run_data, open_run_capture
@@ -65,7 +65,8 @@ def measure(path, fraction: float, passes: int, variants: list[str]) -> dict:
     run = load_run_data(path)
     restore_before_finish(path, run)
     config = dataclasses.replace(run.config, mapping=dataclasses.replace(
-        run.config.mapping, final_hole_fill=fraction, final_hole_fill_iterations=passes))
+        run.config.mapping, final_hole_fill=fraction, final_hole_fill_opacity=opacity,
+        final_hole_fill_iterations=passes))
     source = open_run_capture(run)
     renderer = Renderer(near=config.near_plane)
     samples = fit_samples(run, source, keep_depth=True)
@@ -85,24 +86,32 @@ def measure(path, fraction: float, passes: int, variants: list[str]) -> dict:
                              added=holes.get("added"), hole_seconds=record.get("holes_seconds"),
                              fit_seconds=record.get("fit_seconds"), fit_kept=record.get("fit", {}).get("kept"),
                              held_out_ratio=record.get("fit", {}).get("held_out_ratio"))
-    return dict(run=str(path), fraction=fraction, passes=passes, kept_frames=len(views), variants=rows)
+    return dict(run=str(path), fraction=fraction, opacity=opacity, passes=passes, kept_frames=len(views),
+                variants=rows)
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+")
+    from splat_core.config_sections import MappingConfig
+
+    default = MappingConfig()
     ap.add_argument("--fraction", type=float, default=0.05, help="mapping.final_hole_fill")
-    ap.add_argument("--passes", type=int, default=2, help="mapping.final_hole_fill_iterations")
+    ap.add_argument("--opacity", type=float, default=default.final_hole_fill_opacity,
+                    help="mapping.final_hole_fill_opacity")
+    ap.add_argument("--passes", type=int, default=default.final_hole_fill_iterations,
+                    help="mapping.final_hole_fill_iterations")
     ap.add_argument("--orders", action="store_true", help="also the colour fit before the hole fill")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     variants = ["fit", "holes+fit", "holes"] + (["fit+holes"] if args.orders else [])
-    rows = [measure(p, args.fraction, args.passes, variants) for p in args.runs]
+    rows = [measure(p, args.fraction, args.opacity, args.passes, variants) for p in args.runs]
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
     for r in rows:
-        print(f"{r['run']} (final_hole_fill {r['fraction']}, {r['passes']} passes, {r['kept_frames']} kept frames)")
+        print(f"{r['run']} (final_hole_fill {r['fraction']}, opacity {r['opacity']}, {r['passes']} passes, "
+              f"{r['kept_frames']} kept frames)")
         for name, v in r["variants"].items():
             extra = "" if name == "none" else (
                 f"; added {v['added']} in {v['hole_seconds'] or 0:.1f} s, fit {'kept' if v['fit_kept'] else 'not kept'}"

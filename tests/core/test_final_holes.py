@@ -9,9 +9,10 @@ import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
+import pytest
 import torch
 
-from splat_core.camera import Intrinsics, backproject
+from splat_core.camera import Intrinsics, backproject, invert_pose
 from splat_core.color_fit import FitSamples
 from splat_core.config import load_config
 from splat_core.final_holes import fill_final_holes
@@ -20,7 +21,7 @@ from splat_core.metrics import is_evaluated
 from splat_core.render import Renderer
 from splat_core.run import Pipeline
 from splat_core.synthetic import SyntheticSource
-from tests.helpers.maps import two_walls
+from tests.helpers.maps import oblique_camera, two_walls
 
 INTR = Intrinsics(fx=60.0, fy=60.0, cx=40.0, cy=30.0, width=80, height=60)
 BOX = (slice(26, 34), slice(25, 31))      # rows, columns of the hole: on the wall at z = 2 m
@@ -58,16 +59,17 @@ def _box_error(gmap, renderer, color, w2c) -> float:
     return float(np.abs(out.color.numpy() - color)[BOX].mean())
 
 
-def test_a_depth_hole_in_front_of_an_empty_map_is_filled_and_its_error_drops():
+@pytest.mark.parametrize("passes", [0, 3])
+def test_a_depth_hole_in_front_of_an_empty_map_is_filled_and_its_error_drops(passes):
     gmap, renderer, color, depth, w2c = _frame_and_map()
     before = _box_error(gmap, renderer, color, w2c)
     assert before > 0.2                                   # the wall's colour (0.8, 0.3, 0.2) renders black
     depth[BOX] = 0
     size = len(gmap)
     view = SimpleNamespace(frame_index=2, w2c=w2c, color=color, depth=depth)
-    record = fill_final_holes(gmap, [view], INTR, renderer, _config())
+    record = fill_final_holes(gmap, [view], INTR, renderer, _config(passes=passes))
     assert record["added"] > 0 and len(gmap) == size + record["added"] and record["frames"] == [2]
-    assert record["steps"] == 3
+    assert record["steps"] == passes
     after = _box_error(gmap, renderer, color, w2c)
     assert after < 0.25 * before
     new = gmap.means.detach().numpy()[size:]
@@ -193,3 +195,19 @@ def test_a_resumed_run_fills_the_same_holes(tmp_path):
     assert again.step() is None
     assert again.finish()["final_hole_fill"]["added"] == whole["final_hole_fill"]["added"]
     assert _files(tmp_path / "part") == _files(tmp_path / "whole")
+
+
+def test_the_optimised_crop_renders_what_the_whole_image_renders_there():
+    """optimise_new renders only the part of a frame the new Gaussians reach: the same pixels."""
+    from splat_core.final_holes import _crop
+
+    gmap, renderer = two_walls(), Renderer()
+    w2c = invert_pose(oblique_camera())
+    panel = gmap.tensors(detach=True).select(gmap.means.detach()[:, 0] > 0.3)
+    crop = _crop(panel, INTR, w2c, renderer, margin=2)
+    assert crop is not None and crop.width < INTR.width
+    top, left = int(round(INTR.cy - crop.cy)), int(round(INTR.cx - crop.cx))
+    with torch.no_grad():
+        whole = renderer.render(gmap.tensors(detach=True), INTR, w2c).color.numpy()
+        part = renderer.render(gmap.tensors(detach=True), crop, w2c).color.numpy()
+    np.testing.assert_allclose(part, whole[top:top + crop.height, left:left + crop.width], atol=1e-5)
