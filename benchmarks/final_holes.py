@@ -3,11 +3,13 @@ splat_core/final_holes.py, then splat_core/color_fit.py) applied to each run fol
 before them, and the PSNR of record (every eval_every-th frame at the estimated pose, every pixel,
 as metrics.json's psnr) of each variant, on the same map and poses.
 
-    python benchmarks/final_holes.py RUN [RUN ...] [--fraction 0.05] [--opacity 0.95] [--passes 0] [--json]
+    python benchmarks/final_holes.py RUN [RUN ...] [--fraction F] [--opacity 0.95] [--passes 0] [--json]
+                                     [--variants fit,holes+fit,holes] [--orders]
 
-Variants: `fit` (the colour fit alone: the `cpu` preset before this pass), `holes+fit` (the hole
-fill, then the colour fit: what SplaTAM.finish does with the setting on), `holes` (the hole fill
-alone) and, with --orders, `fit+holes` (the colour fit first). The passes move no pose (tracking
+--fraction defaults to the `cpu` preset's mapping.final_hole_fill (0.1), --opacity and --passes to
+the settings' defaults. Variants: `fit` (the colour fit alone: the `cpu` preset before this
+pass), `holes+fit` (the hole fill, then the colour fit: what SplaTAM.finish does with the setting
+on), `holes` (the hole fill alone) and, with --orders, `fit+holes` (the colour fit first). The passes move no pose (tracking
 has finished), so applying them to a run folder of the same configuration gives the map and PSNR a
 run with the setting would write; the kept frames (colour and depth, never an evaluated frame) are
 re-read from the capture (benchmarks/color_fit.py). A run made with the passes is measured from
@@ -93,18 +95,20 @@ def measure(path, fraction: float, opacity: float, passes: int, variants: list[s
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", nargs="+")
-    from splat_core.config_sections import MappingConfig
+    from splat_core.config import load_config
 
-    default = MappingConfig()
-    ap.add_argument("--fraction", type=float, default=0.05, help="mapping.final_hole_fill")
+    default = load_config("cpu").mapping
+    ap.add_argument("--fraction", type=float, default=default.final_hole_fill,
+                    help="mapping.final_hole_fill (default: the cpu preset's)")
     ap.add_argument("--opacity", type=float, default=default.final_hole_fill_opacity,
                     help="mapping.final_hole_fill_opacity")
     ap.add_argument("--passes", type=int, default=default.final_hole_fill_iterations,
                     help="mapping.final_hole_fill_iterations")
     ap.add_argument("--orders", action="store_true", help="also the colour fit before the hole fill")
+    ap.add_argument("--variants", default="fit,holes+fit,holes", help="which, comma-separated")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
-    variants = ["fit", "holes+fit", "holes"] + (["fit+holes"] if args.orders else [])
+    variants = args.variants.split(",") + (["fit+holes"] if args.orders else [])
     rows = [measure(p, args.fraction, args.opacity, args.passes, variants) for p in args.runs]
     if args.json:
         print(json.dumps(rows, indent=1))
