@@ -37,8 +37,8 @@ class SlamState:
     def finish(self) -> dict:
         """The end of the run, after its last frame was mapped, over the frames kept for it (none of
         them evaluated: color_fit.FitSamples) at their final poses; no pose moves:
-          - mapping.final_hole_fill: Gaussians where those frames have no depth and the map is empty,
-            then only they optimised (final_holes.py);
+          - mapping.final_hole_fill: Gaussians where those frames have no depth and the map is empty
+            (with final_hole_fill_iterations, then only they optimised: final_holes.py);
           - mapping.final_color_fit: the map's colours given the gain and offset per channel that
             best fit its renders to those frames (color_fit.py);
         and the finished map published. Returns metrics.json's sections, `final_hole_fill` and
