@@ -14,7 +14,7 @@ setting has the plain run's trajectory, and its colours are the plain map's unde
 gain and offset), so applying it to a run folder of the same configuration without the setting
 gives the map and PSNR a run with it would have written. A run made with the setting is measured
 from its colours before the fit (its checkpoint keeps them; a run from before that: metrics.json's
-fit undone). Writes nothing.
+fit undone; with the hole fill, its Gaussians removed too). Writes nothing.
 """
 
 from __future__ import annotations
@@ -48,35 +48,46 @@ def run_psnr(run, source, renderer) -> tuple[float, list[float]]:
     return float(np.mean(out)), out
 
 
-def fit_samples(run, source):
-    """The frames SplaTAM.track keeps for the fit (color_fit.FitSamples), re-read from the capture
-    at the working resolution."""
+def fit_samples(run, source, keep_depth: bool = False):
+    """The frames SplaTAM.track keeps for the fit (color_fit.FitSamples; with their depth for the
+    hole fill: `keep_depth`), re-read from the capture at the working resolution."""
     from splat_core.color_fit import FitSamples, is_fit_frame
     from splat_core.refine.run_data import frame_views
 
-    samples = FitSamples(run.intrinsics, run.config.eval_every)
+    samples = FitSamples(run.intrinsics, run.config.eval_every, keep_depth=keep_depth)
     for k in range(len(run.records)):
         if is_fit_frame(k, run.config.eval_every):
-            samples.offer(k, frame_views(run, source, run.intrinsics, [k])[0].color.cpu().numpy())
+            view = frame_views(run, source, run.intrinsics, [k])[0]
+            samples.offer(k, view.color.cpu().numpy(), view.depth.cpu().numpy())
     return samples
 
 
-def colors_before_fit(path, run):
-    """A run made with the setting: its map's colours before the fit (the checkpoint keeps them;
-    a run from before it did: the fit of metrics.json undone). None: a run without it."""
+def restore_before_finish(path, run) -> bool:
+    """A run made with the end-of-run passes: its map put back as it was before them (the checkpoint
+    keeps the Gaussians' count and colours; a run from before it did: metrics.json's fit undone).
+    False: a run without them (its map is as it was)."""
     import torch
 
+    from splat_core.gaussians import PARAM_NAMES, GaussianMap
     from splat_core.run.run_folder import RunFolder
 
     folder = RunFolder(path)
-    before = folder.load_checkpoint().arrays.get("fit_colors_before")
+    arrays = folder.load_checkpoint().arrays
+    before = arrays.get("fit_colors_before")
     if before is not None:
-        return torch.as_tensor(before)
+        size = int(arrays.get("finish_map_size", len(before)))
+        m = run.map
+        kept = [m.params[n].detach()[:size] for n in PARAM_NAMES]
+        kept[1] = torch.as_tensor(np.asarray(before), dtype=m.dtype)
+        run.map = GaussianMap(*kept, m.birth_frame[:size])
+        return True
     record = (folder.read_metrics() or {}).get("final_color_fit")
     if record is None:
-        return None
-    colors = run.map.params["colors"].detach()
-    return (colors - torch.tensor(record["offset"], dtype=colors.dtype)) / torch.tensor(record["gain"], dtype=colors.dtype)
+        return False
+    colors = run.map.params["colors"]
+    colors.data.copy_((colors.detach() - torch.tensor(record["offset"], dtype=colors.dtype))
+                      / torch.tensor(record["gain"], dtype=colors.dtype))
+    return True
 
 
 def measure(path, min_improvement="run", prior=None) -> dict:
@@ -85,9 +96,7 @@ def measure(path, min_improvement="run", prior=None) -> dict:
     from splat_core.render import Renderer
 
     run = load_run_data(path)
-    before_fit = colors_before_fit(path, run)
-    if before_fit is not None:
-        run.map.params["colors"].data.copy_(before_fit)
+    restore_before_finish(path, run)
     source = open_run_capture(run)
     renderer = Renderer(near=run.config.near_plane)
     before, _ = run_psnr(run, source, renderer)

@@ -46,6 +46,7 @@ from .metrics import is_evaluated
 
 FIT_FRAMES_MAX = 64
 FIT_SCALE = 0.5            # the kept colour and the fit's renders: half the working resolution
+DEPTH_MM_MAX = 65535      # kept depth: uint16 millimetres
 
 
 class ColorFit:
@@ -125,14 +126,18 @@ def is_fit_frame(t: int, eval_every: int) -> bool:
 
 
 class FitSamples:
-    """The fit's frames: their processed index and colour (uint8, FIT_SCALE of the working size).
-    Offered every frame by the tracking side (SplaTAM.track); bounded by thinning: past
-    FIT_FRAMES_MAX, only every 2nd, then 4th, ... fit frame of the run is kept."""
+    """The fit's frames: their processed index and colour (uint8, FIT_SCALE of the working size),
+    and with `keep_depth` (mapping.final_hole_fill: final_holes.py) their depth too (uint16
+    millimetres, the same size, nearest neighbour; 0: invalid, and so beyond 65.5 m). Offered every
+    frame by the tracking side (SplaTAM.track); bounded by thinning: past FIT_FRAMES_MAX, only every
+    2nd, then 4th, ... fit frame of the run is kept."""
 
-    def __init__(self, intrinsics: Intrinsics, eval_every: int):
+    def __init__(self, intrinsics: Intrinsics, eval_every: int, keep_depth: bool = False):
         self.intrinsics = intrinsics.fraction(FIT_SCALE)
         self.eval_every = eval_every
+        self.keep_depth = keep_depth
         self.kept: list[tuple[int, np.ndarray]] = []     # (frame, colour); replaced, never edited, when thinned
+        self.depths: dict[int, np.ndarray] = {}          # frame -> depth (keep_depth), the frames of `kept`
         self.stride = 1
 
     def __len__(self) -> int:
@@ -145,42 +150,58 @@ class FitSamples:
     def _ordinal(self, t: int) -> int:
         return _midway(t, self.eval_every)[0]
 
-    def offer(self, t: int, color: np.ndarray) -> None:
-        """Frame t's colour (H x W x 3 in [0, 1], the working resolution), kept if it is a fit frame."""
+    def offer(self, t: int, color: np.ndarray, depth: np.ndarray | None = None) -> None:
+        """Frame t's colour (H x W x 3 in [0, 1], the working resolution) and depth (H x W metres;
+        kept with keep_depth), kept if it is a fit frame."""
         if not is_fit_frame(t, self.eval_every) or self._ordinal(t) % self.stride:
             return
         import cv2
 
-        small = cv2.resize(np.asarray(color, np.float32), (self.intrinsics.width, self.intrinsics.height),
-                           interpolation=cv2.INTER_AREA)
+        size = (self.intrinsics.width, self.intrinsics.height)
+        small = cv2.resize(np.asarray(color, np.float32), size, interpolation=cv2.INTER_AREA)
         kept = self.kept + [(t, np.clip(np.rint(small * 255.0), 0, 255).astype(np.uint8))]
+        if self.keep_depth and depth is not None:
+            mm = np.rint(cv2.resize(np.asarray(depth, np.float32), size, interpolation=cv2.INTER_NEAREST) * 1000.0)
+            self.depths[t] = np.where((mm > 0) & (mm <= DEPTH_MM_MAX), mm, 0).astype(np.uint16)
         if len(kept) > FIT_FRAMES_MAX:
             self.stride *= 2
             kept = [(f, c) for f, c in kept if self._ordinal(f) % self.stride == 0]
         self.kept = kept
+        self.depths = {f: self.depths[f] for f, _ in kept if f in self.depths}
 
     def drop(self, t: int) -> None:
         """Forget frame t (the live engine tracks it again: SplaTAM.retract)."""
         if self.kept and self.kept[-1][0] == t:
             self.kept = self.kept[:-1]
+            self.depths.pop(t, None)
 
     def views(self, w2cs: list, lost) -> list:
         """The kept frames at their poses now (a loop correction moves them); `lost(t)`: a reason
-        when frame t's pose was not tracked (left out)."""
-        return [SimpleNamespace(frame_index=t, w2c=w2cs[t], color=c.astype(np.float32) / 255.0)
+        when frame t's pose was not tracked (left out). `.depth`: metres, or None (not kept)."""
+        return [SimpleNamespace(frame_index=t, w2c=w2cs[t], color=c.astype(np.float32) / 255.0,
+                                depth=self.depths[t].astype(np.float32) / 1000.0 if t in self.depths else None)
                 for t, c in self.kept if t < len(w2cs) and lost(t) is None]
 
     def to_arrays(self, frames: int) -> dict:
         """The samples of frames 0 .. frames-1 (a checkpoint's; the live mapper's is of an earlier frame)."""
         kept = [(t, c) for t, c in self.kept if t < frames]
         h, w = self.intrinsics.height, self.intrinsics.width
-        return dict(fit_frames=np.array([t for t, _ in kept], np.int64), fit_stride=np.array(self.stride),
-                    fit_colors=np.stack([c for _, c in kept]) if kept else np.zeros((0, h, w, 3), np.uint8))
+        arrays = dict(fit_frames=np.array([t for t, _ in kept], np.int64), fit_stride=np.array(self.stride),
+                      fit_colors=np.stack([c for _, c in kept]) if kept else np.zeros((0, h, w, 3), np.uint8))
+        if self.keep_depth:
+            with_depth = [t for t, _ in kept if t in self.depths]
+            arrays["fit_depth_frames"] = np.array(with_depth, np.int64)
+            arrays["fit_depths"] = (np.stack([self.depths[t] for t in with_depth]) if with_depth
+                                    else np.zeros((0, h, w), np.uint16))
+        return arrays
 
     def load_arrays(self, arrays: dict) -> None:
         frames = [int(t) for t in arrays.get("fit_frames", ())]
         self.kept = list(zip(frames, np.asarray(arrays["fit_colors"]))) if frames else []
         self.stride = int(arrays.get("fit_stride", 1))
+        # a checkpoint without depths (made with final_hole_fill off): the hole fill skips those frames
+        with_depth = [int(t) for t in arrays.get("fit_depth_frames", ())] if self.keep_depth else []
+        self.depths = dict(zip(with_depth, np.asarray(arrays["fit_depths"]))) if with_depth else {}
 
 
 def fit_map_colors(gmap, views, intrinsics: Intrinsics, renderer, min_improvement: float | None = None,

@@ -172,6 +172,18 @@ class MappingConfig:
         0.03, "weight of identity (gain 1, offset 0) in that fit, per pixel of its frames (0: least squares)",
         unit="fraction", trades="larger: smaller corrections (the fit's frames are not the map's training "
         "views and ask for more than the evaluated frames need)")
+    final_hole_fill: float = setting(
+        0.0, "after the last frame (tracking finished: no pose moves), before that colour fit: Gaussians where "
+        "the frames kept for the fits have no valid depth and the finished map is empty, at the farthest valid "
+        "depth within this fraction of the image width, then only those optimised over the same frames "
+        "(final_holes.py); 0 = off", unit="fraction of width",
+        trades="larger: bigger holes get colour, at a guessed depth; on: the kept frames' depth is kept too "
+        "(38.4 kB each at 320x240) and the pass adds seconds at the end")
+    final_hole_fill_opacity: float = setting(0.95, "opacity of the hole fill's Gaussians", unit="opacity")
+    final_hole_fill_iterations: int = setting(
+        0, "passes over the kept frames optimising only the hole fill's Gaussians (colour, opacity, scale; "
+        "the rest frozen); 0: as placed (the frame's colour)", unit="passes",
+        trades="more: a few hundredths of a dB on 7-Scenes, nothing on SUN3D, for 3-4x the pass's seconds")
 
 
 @dataclass

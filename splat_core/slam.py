@@ -20,7 +20,7 @@ SplaTAM is the only writer of its state (map, poses, keyframes, loops); collabor
 results it applies: lost tracking a Verdict (relocalise.py), loop closure a LoopFound with its
 Correction (loop/; the engine chooses the locking: `close_loops(t, guard)`), densification new
 Gaussians (densify.py). `state_arrays` / `load_state_arrays` save and load all of it, and
-`finish()` ends a run (the end-of-run colour fit): slam_checkpoint.py.
+`finish()` ends a run (the end-of-run hole fill and colour fit): slam_checkpoint.py.
 """
 
 from __future__ import annotations
@@ -80,8 +80,11 @@ class SplaTAM(SlamState):
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
-        # mapping.final_color_fit: frames kept for the end-of-run colour fit (color_fit.py; finish())
-        self.fit_samples = FitSamples(intrinsics, config.eval_every) if config.mapping.final_color_fit else None
+        # mapping.final_color_fit / final_hole_fill: frames kept for the end-of-run passes (color_fit.py,
+        # final_holes.py; finish()), with their depth for the hole fill
+        holes = config.mapping.final_hole_fill > 0
+        self.fit_samples = (FitSamples(intrinsics, config.eval_every, keep_depth=holes)
+                            if config.mapping.final_color_fit or holes else None)
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)
@@ -182,7 +185,7 @@ class SplaTAM(SlamState):
         self.sources.append(int(frame.index))
         self._mark_keyframe(t, defer_keyframe)
         if self.fit_samples is not None:
-            self.fit_samples.offer(t, frame.color)
+            self.fit_samples.offer(t, frame.color, frame.depth)
         return t, w2c, tracked
 
     def retract(self, t: int) -> None:

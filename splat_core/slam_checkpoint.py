@@ -3,23 +3,27 @@ that saves, loads and finishes what its steps made. A mixin: SplaTAM stays the o
 
     arrays = slam.state_arrays()          everything a resume needs (map, keyframes, poses, rng, ...)
     slam.load_state_arrays(arrays, file)  restore it (the keyframe images are records of `file`)
-    record = slam.finish()                the end-of-run steps on the map (mapping.final_color_fit)
+    sections = slam.finish()              the end-of-run passes on the map (mapping.final_hole_fill,
+                                          mapping.final_color_fit): metrics.json's sections
 
-After `finish` the map is the fitted one (published as a new version, and in the checkpoint's map,
-which browsing, refinement and renders read); the checkpoint also keeps the colours from before the
-fit (`fit_colors_before`) and the frames kept for the fit (`fit_frames`, `fit_colors`), and loading
-it restores those: a resumed run is in the state before its end, goes on with any frames left, and
-fits again when it finishes (the same fit: tests/core/test_color_fit.py).
+After `finish` the map is the finished one (published as a new version, and in the checkpoint's
+map, which browsing, refinement and renders read); the checkpoint also keeps how many Gaussians
+the map had before it (`finish_map_size`: the hole fill appends after them) and their colours
+(`fit_colors_before`), and the frames kept for the passes (`fit_frames`, `fit_colors`,
+`fit_depths`), and loading it restores those: a resumed run is in the state before its end, goes
+on with any frames left, and finishes again when it ends (the same passes: tests/core/).
 """
 
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import torch
 
 from .color_fit import fit_map_colors
+from .final_holes import fill_final_holes
 from .gaussians import GaussianMap
 from .loop.records import LoopRecord
 
@@ -27,25 +31,39 @@ from .loop.records import LoopRecord
 class SlamState:
     """SplaTAM's checkpoint and finish (its attributes: slam.py)."""
 
-    color_fit: dict | None = None                 # the end-of-run fit's record, once finish() made it
-    _colors_before_fit: torch.Tensor | None = None
+    finished: dict | None = None                  # finish()'s sections, once it ran
+    _before_finish: tuple[int, torch.Tensor] | None = None     # the map's size and colours before finish()
 
-    def finish(self) -> dict | None:
-        """The end of the run, after its last frame was mapped: mapping.final_color_fit, the map's
-        colours given the gain and offset per channel that best fit its renders to the frames kept
-        for it, none of them evaluated (color_fit.py), and the fitted map published. Returns the
-        fit's record (None: off, or no frame kept or no Gaussian); a second call returns the first's."""
-        if self.color_fit is not None or self.fit_samples is None or not len(self.map):
-            return self.color_fit
+    def finish(self) -> dict:
+        """The end of the run, after its last frame was mapped, over the frames kept for it (none of
+        them evaluated: color_fit.FitSamples) at their final poses; no pose moves:
+          - mapping.final_hole_fill: Gaussians where those frames have no depth and the map is empty
+            (with final_hole_fill_iterations, then only they optimised: final_holes.py);
+          - mapping.final_color_fit: the map's colours given the gain and offset per channel that
+            best fit its renders to those frames (color_fit.py);
+        and the finished map published. Returns metrics.json's sections, `final_hole_fill` and
+        `final_color_fit` (each where it ran; empty: both off, or no frame kept or no Gaussian); a
+        second call returns the first's."""
+        if self.finished is not None:
+            return self.finished
+        if self.fit_samples is None or not len(self.map):
+            return {}
         views = self.fit_samples.views(self.w2cs, self.lost_tracking.reason)
         if not views:
-            return None
-        self._colors_before_fit = self.map.params["colors"].detach().clone()
-        self.color_fit = fit_map_colors(self.map, views, self.fit_samples.intrinsics, self.renderer,
-                                        self.config.mapping.final_color_fit_min_improvement,
-                                        self.config.mapping.final_color_fit_prior)
+            return {}
+        mapping, intrinsics = self.config.mapping, self.fit_samples.intrinsics
+        self._before_finish = (len(self.map), self.map.params["colors"].detach().clone())
+        sections = {}
+        if mapping.final_hole_fill > 0:
+            sections["final_hole_fill"] = fill_final_holes(self.map, views, intrinsics, self.renderer, self.config)
+        if mapping.final_color_fit:
+            start = time.perf_counter()
+            record = fit_map_colors(self.map, views, intrinsics, self.renderer,
+                                    mapping.final_color_fit_min_improvement, mapping.final_color_fit_prior)
+            sections["final_color_fit"] = dict(record, seconds=time.perf_counter() - start)
+        self.finished = sections
         self.publish(self.frames_tracked - 1)
-        return self.color_fit
+        return sections
 
     def tracking_state(self) -> tuple[str, str]:
         """The tracking side's state (the tracker's pixel choice, the lost-tracking watch) as text."""
@@ -55,8 +73,9 @@ class SlamState:
         """Everything a resume needs. The live engine's mapper saves the state at the newest frame
         it mapped: `w2cs` up to that frame and the tracking state saved right after it was tracked."""
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
-        if self._colors_before_fit is not None:
-            arrays["fit_colors_before"] = self._colors_before_fit.cpu().numpy()
+        if self._before_finish is not None:
+            arrays["finish_map_size"] = np.array(self._before_finish[0], np.int64)
+            arrays["fit_colors_before"] = self._before_finish[1].cpu().numpy()
         arrays.update(self.keyframes.to_arrays())
         arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
         if self.fit_samples is not None:
@@ -75,12 +94,14 @@ class SlamState:
 
     def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
         """Restore a checkpoint; the keyframe images are the first records of `keyframe_file`. A
-        finished run's map is restored as it was before finish() (its colours before the fit)."""
+        finished run's map is restored as it was before finish() (its Gaussians and colours before)."""
         gaussians = {k[4:]: v for k, v in arrays.items() if k.startswith("map_")}
         if "fit_colors_before" in arrays:
+            size = int(arrays.get("finish_map_size", len(arrays["fit_colors_before"])))
+            gaussians = {k: np.asarray(v)[:size] for k, v in gaussians.items()}
             gaussians["colors"] = arrays["fit_colors_before"]
         self.map = GaussianMap.from_numpy(gaussians, device=self.device, dtype=self.dtype)
-        self.color_fit, self._colors_before_fit = None, None
+        self.finished, self._before_finish = None, None
         self.keyframes.load_arrays(arrays, keyframe_file)
         if self.fit_samples is not None:
             self.fit_samples.load_arrays(arrays)

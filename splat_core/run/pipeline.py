@@ -282,17 +282,14 @@ class Pipeline:
         """Compute metrics and write the run folder (each file atomically)."""
         self.engine.drain()
         self.engine.close()
-        start = time.perf_counter()
-        color_fit = self.engine.finish_map()     # the end-of-run colour fit (SplaTAM.finish)
-        fit_seconds = time.perf_counter() - start
+        finished = self.engine.finish_map()      # the end-of-run hole fill and colour fit (SplaTAM.finish)
         # Time to the end of the run counts: the live engine's last frames are mapped only now, and
         # the map is finished (its colours fitted) only now.
         if self.records and self._last_step is not None:
             self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
             self._last_step = None
         result = self.metrics()
-        if color_fit is not None:
-            result["final_color_fit"] = dict(color_fit, seconds=fit_seconds)
+        result.update(finished)                  # final_hole_fill, final_color_fit: each with its seconds
         if self.folder is not None:
             comments = {r["index"]: f"tracking lost at frame {r['index']} (capture frame {r['source_index']}): "
                         f"{r['reason']}; the pose below is not tracked (interpolated between the tracked frames on "

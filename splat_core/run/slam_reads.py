@@ -41,10 +41,11 @@ class SlamReads:
         """The map after drain() rendered at w2c (no gradients): evaluation."""
         return self.slam.render_view(w2c)
 
-    def finish_map(self) -> dict | None:
-        """The end of the run (after drain() and close()): SplaTAM.finish, which fits the map's colours
-        (mapping.final_color_fit) and publishes the fitted map, so map_version(), map_arrays(),
-        render() and the checkpoint all give it. Its record, or None (off, or nothing to fit)."""
+    def finish_map(self) -> dict:
+        """The end of the run (after drain() and close()): SplaTAM.finish, which fills the map's holes
+        (mapping.final_hole_fill), fits its colours (mapping.final_color_fit) and publishes the
+        finished map, so map_version(), map_arrays(), render() and the checkpoint all give it.
+        metrics.json's sections of those passes (empty: off, or nothing to do)."""
         return self.slam.finish()
 
     def attach_keyframes(self, path) -> None:
