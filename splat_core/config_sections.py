@@ -204,7 +204,7 @@ class DensifyConfig:
     hole_fill_at_edge: bool = setting(False, "with hole_fill, only holes within the fill radius of the image's edge "
                                       "get Gaussians: the band a depth camera's registration to colour leaves "
                                       "without depth (SUN3D: the right 18 columns, the top 7 rows); holes inside "
-                                      "the image (depth shadows, dark patches) stay empty (the `live` preset)",
+                                      "the image (depth shadows, dark patches) stay empty",
                                       trades="true: no guessed depths inside the image; interior holes stay dark")
 
 
