@@ -78,7 +78,7 @@ def restore_before_finish(path, run) -> bool:
         size = int(arrays.get("finish_map_size", len(before)))
         m = run.map
         kept = [m.params[n].detach()[:size] for n in PARAM_NAMES]
-        kept[1] = torch.as_tensor(np.asarray(before), dtype=m.dtype)
+        kept[PARAM_NAMES.index("colors")] = torch.as_tensor(np.asarray(before), dtype=m.dtype)
         run.map = GaussianMap(*kept, m.birth_frame[:size])
         return True
     record = (folder.read_metrics() or {}).get("final_color_fit")

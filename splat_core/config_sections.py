@@ -201,11 +201,6 @@ class DensifyConfig:
                                "a dark or shiny patch, a depth shadow behind an edge); 0 = off (densify.py)",
                                unit="fraction of width",
                                trades="larger: bigger holes get colour, at a guessed depth")
-    hole_fill_at_edge: bool = setting(False, "with hole_fill, only holes within the fill radius of the image's edge "
-                                      "get Gaussians: the band a depth camera's registration to colour leaves "
-                                      "without depth (SUN3D: the right 18 columns, the top 7 rows); holes inside "
-                                      "the image (depth shadows, dark patches) stay empty",
-                                      trades="true: no guessed depths inside the image; interior holes stay dark")
 
 
 @dataclass

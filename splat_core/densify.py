@@ -8,9 +8,6 @@ and the measured depth is valid. With densify.hole_fill > 0, pixels without vali
 map is empty get one too, at the farthest valid depth within hole_fill x the image width
 (`filled_depth`; farthest, as a depth shadow beside an edge belongs to the background): a screen
 or a black, shiny patch the depth camera misses would otherwise stay black in every render.
-With densify.hole_fill_at_edge only the band along the image's edge is filled (where a depth
-camera registered to colour has no depth: SUN3D's right 18 columns and top 7 rows), not holes
-inside the image.
 New Gaussians sit on the back-projected pixel, with a one-pixel
 radius (depth / mean focal length at the densification resolution) and opacity 0.5.
 """
@@ -54,12 +51,8 @@ def filled_depth(depth: np.ndarray, fraction: float) -> np.ndarray:
 def hole_pixel_mask(depth: np.ndarray, filled: np.ndarray, silhouette: np.ndarray | None,
                     config: DensifyConfig) -> np.ndarray:
     """H x W bool: pixels without valid depth, with a filled depth, where the map is empty
-    (silhouette None: an empty map); with hole_fill_at_edge only those within the fill radius of
-    the image's edge."""
+    (silhouette None: an empty map)."""
     holes = (depth <= 0) & (filled > 0)
-    if config.hole_fill_at_edge:
-        r = max(1, int(round(config.hole_fill * depth.shape[1])))
-        holes[r:-r, r:-r] = False
     return holes if silhouette is None else holes & (silhouette < config.silhouette_threshold)
 
 

@@ -128,9 +128,7 @@ def fill_final_holes(gmap: GaussianMap, views, intrinsics: Intrinsics, renderer,
     mapping = config.mapping
     views = [v for v in views if getattr(v, "depth", None) is not None]
     first = len(gmap)
-    # Every hole, not only the image's edge band the live preset's in-run fill keeps to (hole_fill_at_edge).
-    densify = dataclasses.replace(config.densify, initial_opacity=mapping.final_hole_fill_opacity,
-                                  hole_fill_at_edge=False)
+    densify = dataclasses.replace(config.densify, initial_opacity=mapping.final_hole_fill_opacity)
     per_view = add_hole_gaussians(gmap, views, intrinsics, renderer, mapping.final_hole_fill, densify,
                                   config.isotropic)
     steps = optimise_new(gmap, first, views, intrinsics, renderer, mapping.final_hole_fill_iterations, mapping.lrs)

@@ -76,21 +76,3 @@ def test_hole_filling_densifies_only_empty_depthless_pixels():
     expected[5:10, 5:10] = True
     assert np.array_equal(mask, expected)
     assert hole_pixel_mask(depth, filled_depth(depth, cfg.hole_fill), None, cfg).sum() == 25 + 20
-
-
-def test_hole_filling_at_the_edge_leaves_holes_inside_the_image_empty():
-    """`densify.hole_fill_at_edge` (the `live` preset): the band without depth along the image's
-    edge (a depth camera registered to colour; SUN3D's right 18 columns) is filled, a hole inside
-    the image (a depth shadow, a dark patch) is not."""
-    from splat_core.densify import filled_depth, hole_pixel_mask
-    depth = np.full((20, 40), 2.0, np.float32)
-    depth[:, 36:] = 0                        # the right edge's band, 4 px wide (radius 4 px: 0.1 x 40)
-    depth[8:12, 15:20] = 0                   # a hole inside the image
-    empty = np.zeros((20, 40), np.float32)
-    everywhere = hole_pixel_mask(depth, filled_depth(depth, 0.1), empty, DensifyConfig(hole_fill=0.1))
-    at_edge = hole_pixel_mask(depth, filled_depth(depth, 0.1), empty,
-                              DensifyConfig(hole_fill=0.1, hole_fill_at_edge=True))
-    assert everywhere[8:12, 15:20].all() and everywhere[:, 36:].all()
-    expected = np.zeros_like(at_edge)
-    expected[:, 36:] = True
-    assert np.array_equal(at_edge, expected)
