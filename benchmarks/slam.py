@@ -56,7 +56,7 @@ def run_one(input_path, preset: str, out: Path, max_frames: int | None, device: 
         return {"error": proc.stderr.strip().splitlines()[-1] if proc.stderr.strip() else f"exit {proc.returncode}"}
     m = json.loads((out / "metrics.json").read_text())
     keep = ("frames", "frames_skipped", "frames_lost", "ate_rmse_cm", "ate_mean_legacy_cm", "psnr", "ssim", "depth_l1_cm",
-            "tracking_seconds_per_frame", "mapping_seconds_per_frame", "wall_seconds_per_frame",
+            "tracking_seconds_per_frame", "mapping_seconds_per_frame", "wall_seconds_per_frame", "cpu_seconds_per_frame",
             "num_gaussians", "peak_memory_mb", "peak_gpu_memory_mb", "resolution", "device", "engine", "live")
     result = {k: m.get(k) for k in keep if k in m}
     later = [f["wall_seconds"] for f in m.get("per_frame", [])[1:]]

@@ -47,7 +47,7 @@ from .relocalise import LostTracking
 from .render import Renderer
 from .slam_checkpoint import SlamState
 from .slam_state import FrameResult, MapStats, MapVersion, SlamView, snapshot_version
-from .tracking import Tracker, TrackResult
+from .tracking import Tracker, TrackResult, load_optimizer_code
 
 __all__ = ["SplaTAM", "FrameResult", "MapStats", "MapVersion", "snapshot_version"]
 
@@ -63,6 +63,7 @@ class SplaTAM(SlamState):
         self.renderer = Renderer(near=config.near_plane)
         self.densify_intrinsics = intrinsics.fraction(config.densify.resolution_scale)
         self.tracker = Tracker(config.tracking, intrinsics, self.renderer, seed=config.seed, device=self.device, dtype=dtype)
+        load_optimizer_code()
         self.lost_tracking = LostTracking(config.lost_tracking, self.tracker)
         self.map = GaussianMap.empty(config.isotropic, device=self.device, dtype=dtype)
         self.keyframes = KeyframeStore(config.keyframes, intrinsics)

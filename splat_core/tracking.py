@@ -110,6 +110,13 @@ def candidate(name: str, w2c: np.ndarray, rendered: Render, obs: Observation, co
         return Candidate(name, np.asarray(w2c, dtype=np.float64), float(loss), int(mask.sum()))
 
 
+def load_optimizer_code() -> None:
+    """torch imports its compiler stack (torch._dynamo: about a second on two cores) when the process
+    makes its first optimiser. Called when an engine is built, so that second is spent before the
+    first frame instead of inside it (frame 1 of a live run waited for it)."""
+    torch.optim.Adam([torch.zeros(1, requires_grad=True)])
+
+
 def pose_adam(q: torch.Tensor, t: torch.Tensor, config: TrackingConfig) -> torch.optim.Adam:
     """Adam on the pose (torch's fused kernel on CUDA: one launch a step instead of a dozen; the
     CPU keeps the per-tensor loop, so its results stay as they were)."""

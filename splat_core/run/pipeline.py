@@ -101,6 +101,7 @@ class Pipeline:
         self.references: list[np.ndarray | None] = []
         self.started = time.perf_counter()
         self._last_step = None
+        self._last_cpu = None                   # the process's CPU time (all threads) at _last_step
         if resume and self.folder is not None and not self.folder.has_checkpoint():
             self.warn(f"{self.folder.checkpoint_dir}: no checkpoint written yet; starting from the first frame")
             resume = False
@@ -152,7 +153,7 @@ class Pipeline:
         given = None
         if self.config.tracking.use_reference_poses:
             given = invert_pose(self._reference_world(frame.c2w_ref, frame.c2w_ref if k == 0 else self.references[0]))
-        begun = time.perf_counter()
+        begun, cpu_begun = time.perf_counter(), time.process_time()
         result = self.engine.process(frame, given)
         if k == 0 and self.streaming:
             # A live source's clock runs from its second frame (io/playback.py): the first is
@@ -162,11 +163,13 @@ class Pipeline:
         now = time.perf_counter()   # wall time since the last frame (the first: its own processing)
         wall = now - self._last_step if self._last_step is not None else \
             now - begun if self.streaming else result.tracking_seconds + result.mapping_seconds
-        self._last_step = now
+        cpu_now = time.process_time()   # CPU seconds of every thread (the live mapper's too), same span
+        cpu = cpu_now - (self._last_cpu if self._last_cpu is not None else cpu_begun)
+        self._last_step, self._last_cpu = now, cpu_now
         self.references.append(frame.c2w_ref)
         self._feed_marks.append((self.cursor, len(self.skipped)))
         self.records.append(dict(
-            index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall,
+            index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall, cpu_seconds=cpu,
             tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
             tracking_start=result.tracking_start, num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
@@ -287,7 +290,8 @@ class Pipeline:
         # the map is finished (its colours fitted) only now.
         if self.records and self._last_step is not None:
             self.records[-1]["wall_seconds"] += time.perf_counter() - self._last_step
-            self._last_step = None
+            self.records[-1]["cpu_seconds"] = self.records[-1].get("cpu_seconds", 0.0) + time.process_time() - self._last_cpu
+            self._last_step = self._last_cpu = None
         result = self.metrics()
         result.update(finished)                  # final_hole_fill, final_color_fit: each with its seconds
         if self.folder is not None:

@@ -52,6 +52,7 @@ def summary(pipe) -> dict:
     track = [r["tracking_seconds"] for r in records]
     mapping = [r["mapping_seconds"] for r in records]
     wall = [r["wall_seconds"] for r in records]
+    cpu = [r.get("cpu_seconds") for r in records]
     out = dict(
         engine=pipe.engine_name, frames=len(records), frames_skipped=len(pipe.skipped),
         skipped=pipe.skipped, frames_lost=len(pipe.lost), lost=pipe.lost,
@@ -63,6 +64,9 @@ def summary(pipe) -> dict:
         seconds_per_frame=float(np.mean(np.add(track, mapping))) if track else None,
         wall_seconds_per_frame=float(np.mean(wall)) if wall else None,
         wall_seconds_per_frame_median=float(np.median(wall[1:])) if len(wall) > 1 else None,
+        # CPU seconds of the whole process (every thread, both cores) per frame, the end included: what
+        # the frames cost whatever else shares the machine (records of runs before it was kept: none)
+        cpu_seconds_per_frame=float(np.mean(cpu)) if cpu and None not in cpu else None,
         peak_memory_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
         device=str(pipe.device), machine=platform.processor() or platform.machine(),
         resolution=[pipe.intrinsics.width, pipe.intrinsics.height], config=pipe.config.name,

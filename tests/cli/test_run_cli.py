@@ -44,6 +44,10 @@ def test_run_writes_a_complete_run_folder(capture, capsys):
     for key in ("ate_rmse_cm", "psnr", "ssim", "depth_l1_cm", "seconds_per_frame", "peak_memory_mb", "per_frame"):
         assert metrics[key] is not None, key
     assert len(metrics["per_frame"]) == 8
+    # CPU time per frame (every thread), summed over the records: the run did work on every frame
+    cpu = [r["cpu_seconds"] for r in metrics["per_frame"]]
+    assert all(c >= 0 for c in cpu) and sum(cpu) > 0
+    assert metrics["cpu_seconds_per_frame"] == pytest.approx(sum(cpu) / 8)
     # which pose tracking kept, per frame: none on frame 0 (the origin), a tracker candidate after
     starts = [r["tracking_start"] for r in metrics["per_frame"]]
     assert starts[0] is None and set(starts[1:]) <= {"aligned", "prediction"} and None not in starts[1:]
