@@ -161,6 +161,9 @@ def main(argv=None) -> int:
     ap.add_argument("--depth-max", type=float, default=3.0)
     ap.add_argument("--max-frames", type=int, default=None)
     ap.add_argument("--device", default="CPU:0", help="Open3D device for dense SLAM (CPU:0, CUDA:0)")
+    ap.add_argument("--save-trajectories", type=Path, default=None, metavar="DIR",
+                    help="write each run's trajectory there (TUM, the capture's timestamps: "
+                         "SEQUENCE__METHOD.txt), e.g. for benchmarks/three_lenses.py --trajectory")
     args = ap.parse_args(argv)
 
     o3d = import_open3d()
@@ -200,6 +203,13 @@ def main(argv=None) -> int:
                 est, s_per_frame, failures = run_rgbd_odometry(o3d, colors, depths, intr, args.depth_max)
                 extra = {"method": "open3d_rgbd_odometry_hybrid"}
             ate = ate_rmse(est, ref) if ref is not None else float("nan")
+            if args.save_trajectories is not None:
+                from splat_core.io.trajectory import write_tum_trajectory
+                args.save_trajectories.mkdir(parents=True, exist_ok=True)
+                tag = method if voxel_size is None else f"{method}_{voxel_size:g}"
+                stamps = open_capture(path).timestamps[:len(est)]
+                write_tum_trajectory(args.save_trajectories / f"{name}__{tag}.txt", stamps, est,
+                                     header=f"Open3D {extra['method']} on {name}")
             split = {"reference_breaks": breaks,
                      "ate_rmse_split_cm": round(100 * ate_rmse_segments(est, ref, breaks), 3)} if breaks else {}
             print(json.dumps({
