@@ -288,6 +288,10 @@ class LostTrackingConfig:
                                  "frames ...")
     loss_history: int = setting(10, "... over this many tracked frames", unit="frames")
     min_history: int = setting(3, "... once that many are known", unit="frames")
+    loss_trend: int = setting(3, "... or, when higher, x the lowest loss per pixel of the last this many tracked "
+                              "frames (a loss that rose over them all: the map ageing behind a moving camera, as "
+                              "when the live mapper falls behind; 0: the median only)", unit="frames",
+                              trades="0: a loss rising faster than the median follows is taken for a lost frame")
     min_coverage: float = setting(0.25, "lost: the map's silhouette covers less than this fraction of the loss's "
                                   "valid-depth pixels", unit="fraction")
     max_speed: float = setting(3.0, "lost: the camera moved faster than this since the last tracked frame ...",
