@@ -19,12 +19,12 @@ tracked pose, the newest keyframes, keyframes spread over the run) and the best 
 rule accepts (`beats` among those) is the frame's pose, unless its loss per pixel is above
 loss_factor x the lowest any start (or the first tracking) reached on this frame. None accepted:
 the frame stays lost, its pose is the last tracked pose (held, never extrapolated), SplaTAM
-neither densifies nor maps from it nor keeps it as a keyframe, and the next frame goes straight to relocalisation (no constant-
-velocity prediction runs from a lost pose, nor from the jump a relocalisation found). Once a frame
-is accepted, tracking resumes normally, and the lost frames' held poses in the trajectory are
-replaced by poses interpolated between the tracked frames on either side (by frame number; a
-better guess of where the camera was than the held pose, used by nothing but the trajectory and
-its ATE: those frames stay out of the map and of the render metrics).
+neither densifies nor maps from it nor keeps it as a keyframe, and the next frame goes straight
+to relocalisation (no constant-velocity prediction runs from a lost pose, nor from the jump a
+relocalisation found). Once a frame is accepted, tracking resumes normally, and the lost frames'
+held poses in the trajectory are replaced by poses interpolated between the tracked frames on
+either side (by frame number; a better guess of where the camera was than the held pose, used by
+nothing but the trajectory and its ATE: those frames stay out of the map and of the render metrics).
 """
 
 from __future__ import annotations
@@ -64,7 +64,8 @@ def lost_reason(e: Evidence, recent: list[float], config: LostTrackingConfig) ->
         median, k = float(np.median(recent)), config.loss_trend
         rising = min(recent[-k:]) if 0 < k <= len(recent) else 0.0    # the loss level the last k frames all reached
         if not e.loss_per_pixel <= config.loss_factor * max(median, rising):
-            against = f"the recent median {median:.3g}" if median >= rising else f"the last {k} frames' lowest {rising:.3g}"
+            against = f"the recent median {median:.3g}" if median >= rising else \
+                f"the last {k} frames' lowest {rising:.3g}"
             return f"loss per pixel {e.loss_per_pixel:.3g} > {config.loss_factor:g} x {against}"
     if e.translation > config.max_speed * e.seconds:
         return f"moved {100 * e.translation:.0f} cm in {e.seconds:.2f} s"
