@@ -131,8 +131,9 @@ class Config:
                  self.lost_tracking.max_turn_rate_deg) > 0 and 0 <= self.lost_tracking.min_coverage <= 1,
              "lost_tracking: loss_factor, max_speed and max_turn_rate_deg must be > 0, min_coverage in [0, 1]"),
             (min(self.lost_tracking.loss_history, self.lost_tracking.min_history) >= 1
-             and min(self.lost_tracking.recent_keyframes, self.lost_tracking.spread_keyframes) >= 0,
-             "lost_tracking: loss_history and min_history must be >= 1, recent/spread_keyframes >= 0"),
+             and min(self.lost_tracking.recent_keyframes, self.lost_tracking.spread_keyframes,
+                     self.lost_tracking.loss_trend) >= 0,
+             "lost_tracking: loss_history and min_history must be >= 1, recent/spread_keyframes and loss_trend >= 0"),
             (self.loop_closure.min_gap_frames >= 1 and self.loop_closure.min_inliers >= 3
              and min(self.loop_closure.max_candidates, self.loop_closure.remap_iterations, self.loop_closure.orb_by_map,
                      self.loop_closure.orb_sample) >= 0 and self.loop_closure.feature_cache >= 1,

@@ -288,12 +288,21 @@ class LostTrackingConfig:
                                  "frames ...")
     loss_history: int = setting(10, "... over this many tracked frames", unit="frames")
     min_history: int = setting(3, "... once that many are known", unit="frames")
+    loss_trend: int = setting(3, "... or, when higher, x the lowest loss per pixel of the last this many tracked "
+                              "frames (a loss that rose over them all: the map ageing behind a moving camera, as "
+                              "when the live mapper falls behind; 0: the median only)", unit="frames",
+                              trades="0: a loss rising faster than the median follows is taken for a lost frame")
     min_coverage: float = setting(0.25, "lost: the map's silhouette covers less than this fraction of the loss's "
                                   "valid-depth pixels", unit="fraction")
     max_speed: float = setting(3.0, "lost: the camera moved faster than this since the last tracked frame ...",
                                unit="m/s")
     max_turn_rate_deg: float = setting(360.0, "... or turned faster; the time from the timestamps (--stride, "
                                        "skipped frames)", unit="degrees/s")
+    edge_first: bool = setting(True, "a frame lost because the map covers too little of it, whose start at the "
+                               "last tracked pose passes, takes that pose without trying the keyframes (the "
+                               "camera at the edge of the map, as a live map lagging a pan leaves it)",
+                               trades="false: every start tried, 3-7 tracker runs: in real time a stall that "
+                               "drops the frames after it")
     recent_keyframes: int = setting(2, "relocalisation starts: the last tracked pose, this many newest "
                                     "keyframes ...", unit="keyframes")
     spread_keyframes: int = setting(3, "... and this many keyframes spread over the run", unit="keyframes",

@@ -6,21 +6,25 @@
 A tracked pose is not believed (the frame is *lost*, `lost_reason`) when
     the map's silhouette covers too little of the frame's valid depth (min_coverage): the camera
         looks where the map is not, and a loss over the few covered pixels proves nothing;
-    its loss per pixel is far above the recent tracked frames' median (loss_factor x median);
+    its loss per pixel is far above the recent tracked frames' median (loss_factor x median) and
+        above loss_factor x the lowest of the last `loss_trend` frames' (a loss that rose over each
+        of them is the level now: a live map that lags a moving camera fits every frame worse, and a
+        median still holding the first frames, fitted by frame 0's own map, called them lost);
     the camera moved or turned faster since the last tracked frame than a hand-held camera does
         (max_speed, max_turn_rate_deg over the time between the two frames' timestamps, so
         --stride, skipped and dropped frames widen the limits; at least the capture-frame gap at
         30 fps, for captures whose timestamps do not advance).
 A lost frame is relocalised at once: the tracker runs again from other start poses (the last
 tracked pose, the newest keyframes, keyframes spread over the run) and the best start the same
-rule accepts (`beats` among those) is the frame's pose. None accepted: the frame stays lost, its
-pose is the last tracked pose (held, never extrapolated), SplaTAM neither densifies nor maps from
-it nor keeps it as a keyframe, and the next frame goes straight to relocalisation (no constant-
-velocity prediction runs from a lost pose, nor from the jump a relocalisation found). Once a frame
-is accepted, tracking resumes normally, and the lost frames' held poses in the trajectory are
-replaced by poses interpolated between the tracked frames on either side (by frame number; a
-better guess of where the camera was than the held pose, used by nothing but the trajectory and
-its ATE: those frames stay out of the map and of the render metrics).
+rule accepts (`beats` among those) is the frame's pose, unless its loss per pixel is above
+loss_factor x the lowest any start (or the first tracking) reached on this frame. None accepted:
+the frame stays lost, its pose is the last tracked pose (held, never extrapolated), SplaTAM
+neither densifies nor maps from it nor keeps it as a keyframe, and the next frame goes straight
+to relocalisation (no constant-velocity prediction runs from a lost pose, nor from the jump a
+relocalisation found). Once a frame is accepted, tracking resumes normally, and the lost frames'
+held poses in the trajectory are replaced by poses interpolated between the tracked frames on
+either side (by frame number; a better guess of where the camera was than the held pose, used by
+nothing but the trajectory and its ATE: those frames stay out of the map and of the render metrics).
 """
 
 from __future__ import annotations
@@ -57,14 +61,22 @@ def lost_reason(e: Evidence, recent: list[float], config: LostTrackingConfig) ->
     if e.coverage is not None and e.coverage < config.min_coverage:
         return f"the map covers {100 * e.coverage:.0f}% of the frame's depth (< {100 * config.min_coverage:.0f}%)"
     if len(recent) >= config.min_history:
-        median = float(np.median(recent))
-        if not e.loss_per_pixel <= config.loss_factor * median:
-            return f"loss per pixel {e.loss_per_pixel:.3g} > {config.loss_factor:g} x the recent median {median:.3g}"
+        median, k = float(np.median(recent)), config.loss_trend
+        rising = min(recent[-k:]) if 0 < k <= len(recent) else 0.0    # the loss level the last k frames all reached
+        if not e.loss_per_pixel <= config.loss_factor * max(median, rising):
+            against = f"the recent median {median:.3g}" if median >= rising else \
+                f"the last {k} frames' lowest {rising:.3g}"
+            return f"loss per pixel {e.loss_per_pixel:.3g} > {config.loss_factor:g} x {against}"
     if e.translation > config.max_speed * e.seconds:
         return f"moved {100 * e.translation:.0f} cm in {e.seconds:.2f} s"
     if e.rotation_deg > config.max_turn_rate_deg * e.seconds:
         return f"turned {e.rotation_deg:.0f} degrees in {e.seconds:.2f} s"
     return None
+
+
+def per_pixel(result: TrackResult) -> float:
+    """The tracking loss per loss pixel (inf: none, or nothing evaluated)."""
+    return result.loss / result.valid_pixels if result.valid_pixels and result.loss is not None else np.inf
 
 
 def relative_motion(w2c_a: np.ndarray, w2c_b: np.ndarray) -> tuple[float, float]:
@@ -158,22 +170,37 @@ class LostTracking:
         self.lost.pop(t, None)
 
     def judge(self, result: TrackResult, w2c_good: np.ndarray, frame: Frame) -> str | None:
-        per_pixel = result.loss / result.valid_pixels if result.valid_pixels and result.loss is not None else np.inf
+        loss = per_pixel(result)
         if result.loss is None:          # nothing evaluated (no polish stage): motion only
-            per_pixel = float(np.median(self.recent)) if self.recent else 0.0
+            loss = float(np.median(self.recent)) if self.recent else 0.0
         coverage = result.valid_pixels / result.depth_pixels if result.depth_pixels else None
         metres, degrees = relative_motion(w2c_good, result.w2c)
         seconds = max(frame.timestamp - self.good[2], max(1, frame.index - self.good[1]) / NOMINAL_FPS)
-        return lost_reason(Evidence(per_pixel, coverage, metres, degrees, seconds), list(self.recent), self.config)
+        return lost_reason(Evidence(loss, coverage, metres, degrees, seconds), list(self.recent), self.config)
 
     def relocalise(self, frame: Frame, gaussians: Gaussians, w2c_good: np.ndarray, keyframes: list,
                    failed: TrackResult | None, why: str) -> tuple[TrackResult | None, str | None]:
-        """Track the frame from each start pose; the best one `judge` accepts, or the best failure."""
+        """Track the frame from each start pose; the best one `judge` accepts, or the best failure. A
+        pose whose loss per pixel is more than loss_factor x the lowest any start (or the tracker)
+        reached on this frame is not believed either: the same frame against the same map fits that
+        much better elsewhere (a start near the camera that the map covers too little of, a pose
+        far off that it covers). A frame the tracker lost for coverage (lost_tracking.edge_first)
+        whose start at the last tracked pose is believed takes it without trying the keyframes."""
+        edge = self.config.edge_first and failed is not None and failed.depth_pixels > 0 and \
+            failed.valid_pixels < self.config.min_coverage * failed.depth_pixels
+        results = []
+        for w2c_start in self.starts(w2c_good, keyframes):
+            results.append(self.tracker.track(gaussians, frame.color, frame.depth, w2c_start))
+            if edge and len(results) == 1 and self.judge(results[0], w2c_good, frame) is None:
+                break           # at the map's edge, where it was: no keyframe tried (each a tracker run)
+        lowest = min((per_pixel(r) for r in results + [failed] if r is not None), default=np.inf)
         best, best_reason = failed, why
         best_ok: Candidate | None = None
-        for w2c_start in self.starts(w2c_good, keyframes):
-            result = self.tracker.track(gaussians, frame.color, frame.depth, w2c_start)
+        for result in results:
             reason = self.judge(result, w2c_good, frame)
+            if reason is None and not per_pixel(result) <= self.config.loss_factor * lowest:
+                reason = (f"loss per pixel {per_pixel(result):.3g} > {self.config.loss_factor:g} x "
+                          f"{lowest:.3g} from another start")
             here = Candidate("relocalised", result.w2c, result.loss if result.loss is not None else np.inf,
                              result.valid_pixels)
             if reason is None and (best_ok is None or beats(here, best_ok)):
