@@ -298,11 +298,6 @@ class LostTrackingConfig:
                                unit="m/s")
     max_turn_rate_deg: float = setting(360.0, "... or turned faster; the time from the timestamps (--stride, "
                                        "skipped frames)", unit="degrees/s")
-    edge_first: bool = setting(True, "a frame lost because the map covers too little of it, whose start at the "
-                               "last tracked pose passes, takes that pose without trying the keyframes (the "
-                               "camera at the edge of the map, as a live map lagging a pan leaves it)",
-                               trades="false: every start tried, 3-7 tracker runs: in real time a stall that "
-                               "drops the frames after it")
     recent_keyframes: int = setting(2, "relocalisation starts: the last tracked pose, this many newest "
                                     "keyframes ...", unit="keyframes")
     spread_keyframes: int = setting(3, "... and this many keyframes spread over the run", unit="keyframes",

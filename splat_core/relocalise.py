@@ -184,15 +184,9 @@ class LostTracking:
         pose whose loss per pixel is more than loss_factor x the lowest any start (or the tracker)
         reached on this frame is not believed either: the same frame against the same map fits that
         much better elsewhere (a start near the camera that the map covers too little of, a pose
-        far off that it covers). A frame the tracker lost for coverage (lost_tracking.edge_first)
-        whose start at the last tracked pose is believed takes it without trying the keyframes."""
-        edge = self.config.edge_first and failed is not None and failed.depth_pixels > 0 and \
-            failed.valid_pixels < self.config.min_coverage * failed.depth_pixels
-        results = []
-        for w2c_start in self.starts(w2c_good, keyframes):
-            results.append(self.tracker.track(gaussians, frame.color, frame.depth, w2c_start))
-            if edge and len(results) == 1 and self.judge(results[0], w2c_good, frame) is None:
-                break           # at the map's edge, where it was: no keyframe tried (each a tracker run)
+        far off that it covers)."""
+        results = [self.tracker.track(gaussians, frame.color, frame.depth, w2c_start)
+                   for w2c_start in self.starts(w2c_good, keyframes)]
         lowest = min((per_pixel(r) for r in results + [failed] if r is not None), default=np.inf)
         best, best_reason = failed, why
         best_ok: Candidate | None = None

@@ -91,23 +91,3 @@ def test_a_relocalised_pose_that_fits_far_worse_than_a_start_near_the_camera_is_
     watch = watch_with({0.0: stale, 0.8: jumped}, recent)
     best, reason = watch.relocalise(frame, None, pose_at(0.0), keyframes, stale, "loss per pixel")
     assert reason is None and best is jumped
-
-
-def test_a_frame_lost_at_the_maps_edge_takes_the_last_pose_without_trying_the_keyframes():
-    # Lost because the map covers 24 % of it; from the last tracked pose the tracker finds 26 %: that
-    # pose is taken, and no keyframe start is tracked (each a tracker run that real time pays in frames).
-    frame = SimpleNamespace(index=100, timestamp=100 / 30, color=None, depth=None)
-    keyframes = [SimpleNamespace(w2c=pose_at(0.8))]
-    edge, again, far = result(0.01, 0.18, 0.24), result(0.01, 0.19, 0.26), result(0.80, 0.15, 0.90)
-    watch = watch_with({0.0: again, 0.8: far}, [0.15] * 10)
-    best, reason = watch.relocalise(frame, None, pose_at(0.0), keyframes, edge, "the map covers 24%")
-    assert reason is None and best is again and watch.tracker.starts == [0.0]
-    # lost for its loss instead: every start is tried, and the best one wins
-    watch = watch_with({0.0: again, 0.8: far}, [0.15] * 10)
-    best, reason = watch.relocalise(frame, None, pose_at(0.0), keyframes, result(0.01, 0.9, 0.9), "loss per pixel")
-    assert reason is None and watch.tracker.starts == [0.0, 0.8]
-    # off (lost_tracking.edge_first false): every start
-    watch = watch_with({0.0: again, 0.8: far}, [0.15] * 10)
-    watch.config = LostTrackingConfig(edge_first=False)
-    watch.relocalise(frame, None, pose_at(0.0), keyframes, edge, "the map covers 24%")
-    assert watch.tracker.starts == [0.0, 0.8]
