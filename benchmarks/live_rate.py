@@ -121,7 +121,7 @@ def main() -> None:
         lag = "–" if r["lag_median"] is None else f"{r['lag_median']:g} / {r['lag_max']}"
         deferred = f" ({r['deferred']} deferred)" if r.get("deferred") else ""
         print(f"| {r['sequence']} | {r['preset']} | {r['engine']} | {frames} | {fmt(r['median'])} | {rate} | "
-              f"{fmt(r['mean'])} | {fmt(r.get('cpu'))} | {fmt(r['ate'])} | {fmt(r['psnr'])} | {lag} | {fmt(r['lag_kf_max'])} | "
+              f"{fmt(r['mean'])} | {fmt(r['cpu'])} | {fmt(r['ate'])} | {fmt(r['psnr'])} | {lag} | {fmt(r['lag_kf_max'])} | "
               f"{fmt(r['keyframes'])}{deferred} | {fmt(r['lost'])} |")
     load = os.getloadavg()
     print(f"\nload average at end {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
