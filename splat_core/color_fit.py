@@ -20,7 +20,7 @@ the map's training views and the evaluated frames are (keyframes fall on them), 
 the kept frames less; least squares answers a small mismatch with a small fit (a lower contrast,
 a slight shift) that the evaluated frames do not need: on SUN3D (one exposure) fits that lowered
 the kept frames' error by 0.5-4 % lowered the evaluated frames' PSNR by up to 0.16 dB, where
-7-Scenes' exposure swings give fits that lower it by far more (docs/benchmarks.md, "Candidate 4").
+7-Scenes' exposure swings give fits that lower it by far more (docs/history/2026-12-06-7scenes-psnr.md, "Candidate 4").
 
 The frames are held out from the evaluation: render metrics use frame 0 and every eval_every-th
 frame (metrics.is_evaluated), and so do the keyframes (keyframes.every, the same rule), so the fit

@@ -168,7 +168,7 @@ def _bin_to_tiles(boxes, ntx, nty, tile_mask):
 
     The tile size is the compile-time TILE: a division by it compiles to a shift, where a
     run-time divisor cost a 64-bit division per box edge (the rasterizer's forward, binning
-    included, was 3-6 % slower with it: docs/benchmarks.md, h13-itercost).
+    included, was 3-6 % slower with it: docs/history/2026-12-06-mapper-cost.md, h13-itercost).
     """
     tile = TILE
     L = boxes.shape[0]
