@@ -30,6 +30,7 @@ class FrameResult:
     mapping_seconds: float
     tracking_loss: float | None
     tracking_iterations: int = 0
+    tracking_coverage: float | None = None   # share of the loss's valid-depth pixels the map covered (lost_tracking.min_coverage)
     tracking_start: str | None = None  # the pose the polish kept or began from: "aligned", "prediction", ... (tracking.py)
     source_index: int = 0         # frame number in the capture
     frame: Frame | None = field(default=None, repr=False)   # the frame at working resolution

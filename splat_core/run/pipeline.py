@@ -172,6 +172,7 @@ class Pipeline:
             index=k, source_index=frame.index, timestamp=frame.timestamp, wall_seconds=wall, cpu_seconds=cpu,
             tracking_seconds=result.tracking_seconds, mapping_seconds=result.mapping_seconds,
             tracking_loss=result.tracking_loss, tracking_iterations=result.tracking_iterations,
+            tracking_coverage=result.tracking_coverage,
             tracking_start=result.tracking_start, num_gaussians=result.num_gaussians, num_added=result.num_added, num_pruned=result.num_pruned,
             is_keyframe=result.is_keyframe, lost=result.lost))
         self._report_lost(result)

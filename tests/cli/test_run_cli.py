@@ -51,6 +51,9 @@ def test_run_writes_a_complete_run_folder(capture, capsys):
     # which pose tracking kept, per frame: none on frame 0 (the origin), a tracker candidate after
     starts = [r["tracking_start"] for r in metrics["per_frame"]]
     assert starts[0] is None and set(starts[1:]) <= {"aligned", "prediction"} and None not in starts[1:]
+    # the map's coverage of each tracked frame's depth (what lost_tracking.min_coverage judges)
+    cover = [r["tracking_coverage"] for r in metrics["per_frame"]]
+    assert cover[0] is None and all(0.5 < c <= 1.0 for c in cover[1:])
     assert load_config(str(out / "config.yaml")).mapping.iterations == 3
     assert (out / "checkpoint" / "state.npz").is_file()
     # A second run into the same folder must not silently overwrite it.
