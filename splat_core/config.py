@@ -127,6 +127,8 @@ class Config:
              "mapping.tile_fraction must be in (0, 1] and mapping.min_tiles >= 0"),
             (0 < self.mapping.first_frame_tile_fraction <= 1, "mapping.first_frame_tile_fraction must be in (0, 1]"),
             (self.live.max_lag >= 0, "live.max_lag must be >= 0"),
+            ((self.live.hurry_coverage is None or 0 <= self.live.hurry_coverage <= 1) and self.live.hurry_iterations >= 1,
+             "live.hurry_coverage must be in [0, 1] or null, live.hurry_iterations >= 1"),
             (min(self.lost_tracking.loss_factor, self.lost_tracking.max_speed,
                  self.lost_tracking.max_turn_rate_deg) > 0 and 0 <= self.lost_tracking.min_coverage <= 1,
              "lost_tracking: loss_factor, max_speed and max_turn_rate_deg must be > 0, min_coverage in [0, 1]"),

@@ -271,6 +271,12 @@ class LiveConfig:
                                       "frame, before optimising over its window: the tracker finds the newly "
                                       "seen parts a mapping step sooner", trades="true: one more copy of the map "
                                       "per keyframe; the tracker may track against Gaussians not yet optimised")
+    hurry_coverage: float | None = setting(None, "where pace_keyframes applies: a keyframe's mapper step ends "
+                                           "after hurry_iterations once a frame tracked after it was covered "
+                                           "less than this share by its map (the camera leaves the map), so the "
+                                           "keyframe owed meanwhile is mapped sooner (null: never)", trades="set: "
+                                           "a map that keeps up with a pan; fewer iterations on its keyframes")
+    hurry_iterations: int = setting(10, "a hurried mapper step's iterations (hurry_coverage)", unit="iterations")
     checkpoint: LiveCheckpoint = setting("drain", "a checkpoint of the live engine: drain (wait until every frame "
                                          "handed over is mapped, then save: the tracker stalls meanwhile) or "
                                          "published (the mapper saves its state after its next step, with the "

@@ -132,10 +132,11 @@ def prune_mask(m: GaussianMap, config: MappingConfig, scene_radius: float) -> to
 
 def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: MappingConfig,
                  iterations: int, scene_radius: float, rng: np.random.Generator,
-                 renderer: Renderer = Renderer()) -> dict:
+                 renderer: Renderer = Renderer(), stop=None) -> dict:
     """Run `iterations` mapping steps on `m` in place; returns counts and the last loss.
 
-    Iteration 0's pruning is the caller's (SplaTAM.prune); this prunes every prune_every steps."""
+    Iteration 0's pruning is the caller's (SplaTAM.prune); this prunes every prune_every steps.
+    `stop(done)`, asked after each iteration with the number done: True ends the step there."""
     near = renderer.near
     removed = 0
     if iterations == 0 or len(m) == 0 or not window:
@@ -178,6 +179,8 @@ def optimise_map(m: GaussianMap, window: list[View], intr: Intrinsics, config: M
             keep = prune_mask(sub, config, scene_radius)
             removed += sub.prune(keep, optimizer)
             index = index[keep]
+        if stop is not None and stop(i + 1):
+            break
 
     # Write the optimised subset back; Gaussians pruned from the subset leave the map.
     with torch.no_grad():

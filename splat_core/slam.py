@@ -204,9 +204,9 @@ class SplaTAM(SlamState):
             self.fit_samples.drop(t)
 
     def map_frame(self, frame: Frame, w2c: np.ndarray, t: int, optimise: bool = True,
-                  densified=None) -> MapStats:
+                  densified=None, stop=None) -> MapStats:
         """Densify from frame t at pose w2c, optimise the map over its window, maybe keep it as a keyframe
-        (`densified`: called between densifying and optimising)."""
+        (`densified`: called between densifying and optimising; `stop`: optimise_map's)."""
         if self.lost_tracking.reason(t) is not None:
             return MapStats()       # a lost frame's pose is not known: nothing of it goes into the map
         start = time.perf_counter()
@@ -216,7 +216,7 @@ class SplaTAM(SlamState):
         if optimise and t % self.config.mapping.map_every == 0:
             window = self.select_window(frame.color, frame.depth, w2c)
             stats.pruned = self.prune()
-            stats.pruned += self.optimise(window, first=(t == 0))
+            stats.pruned += self.optimise(window, first=(t == 0), stop=stop)
         if self.is_keyframe(t):
             self.keyframes.add(t, w2c, frame.color, frame.depth)
         stats.seconds = time.perf_counter() - start
@@ -299,7 +299,7 @@ class SplaTAM(SlamState):
         """Remove nearly transparent and oversized Gaussians (mapping's iteration-0 pruning)."""
         return self.map.prune(prune_mask(self.map, self.config.mapping, self.scene_radius))
 
-    def optimise(self, window: list[View], first: bool = False, iterations: int | None = None) -> int:
+    def optimise(self, window: list[View], first: bool = False, iterations: int | None = None, stop=None) -> int:
         mc = self.config.mapping
         if iterations is None:
             iterations = mc.first_frame_iterations if (first and mc.first_frame_iterations is not None) \
@@ -307,7 +307,7 @@ class SplaTAM(SlamState):
         if first:       # frame 0 anchors every later pose: its long first mapping draws every tile (but `live`)
             mc = dataclasses.replace(mc, tile_fraction=mc.first_frame_tile_fraction)
         stats = optimise_map(self.map, window, self.intrinsics, mc, iterations, self.scene_radius, self.rng,
-                             renderer=self.renderer)
+                             renderer=self.renderer, stop=stop)
         return stats["pruned"]
 
     # ------------------------------------------------------------------ map versions

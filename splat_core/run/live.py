@@ -22,8 +22,9 @@ tracked; after that the tracker waits while the newest published version is more
 preset) it never waits after frame 0 but for `live.max_keyframe_lag` (keyframes handed over and
 unmapped) on a capture read frame by frame; on a live source (stream, real-time playback) a
 keyframe falling due meanwhile is deferred instead (`live.pace_keyframes`; SplaTAM.keyframe_marks:
-owed by the next frames until one is tracked with the mapper caught up). Waiting is the only
-coupling. `stats()` reports the lag in frames and keyframes.
+owed by the next frames until one is tracked with the mapper caught up), and a frame the map
+covers too little of cuts the mapper's step short (`live.hurry_coverage`). `stats()` reports the
+lag in frames and keyframes.
 
 Cores: under Numba's thread-safe "omp" layer both threads run kernels at once (parallel.numba_lock),
 each over all cores. GPU: the mapper runs on its own CUDA stream (mapper_stream); a published
@@ -41,22 +42,12 @@ import time
 from collections import deque
 
 import numpy as np
-import torch
 
 from ..config import LiveConfig
+from ..device import mapper_stream
 from ..frame import Frame
 from ..slam import DEFERRED, FrameResult, MapStats, MapVersion, SplaTAM
 from .slam_reads import SlamReads
-
-
-def mapper_stream(device):
-    """On CUDA: the mapper thread's work goes to a stream of its own, so the tracker's kernels
-    (on the default stream) never queue behind a mapping step. Versions are handed over with an
-    event (SplaTAM.publish / MapVersion.wait_ready). Elsewhere: nothing."""
-    device = torch.device(device)
-    if device.type != "cuda":
-        return contextlib.nullcontext()
-    return torch.cuda.stream(torch.cuda.Stream(device))
 
 
 class LiveEngine(SlamReads):
@@ -79,6 +70,8 @@ class LiveEngine(SlamReads):
         self.lag_keyframes: list[int] = []  # ... the keyframes between them (tracked, not yet in that version)
         self.num_added = self.num_pruned = 0
         self.densified_between = 0          # frames between keyframes densified from (live.densify_between)
+        self._left_map = -1                 # newest frame tracked while the map covered < live.hurry_coverage
+        self.hurried = 0                    # keyframe steps ended early for it
         # Loop closure (splat_core/loop/) runs in this mapper thread after a keyframe; while it runs the
         # tracker does not wait for the map (a loop never stalls tracking), and its pose edits happen
         # under _poses, which the tracker holds while it tracks one frame; the moved map is published
@@ -89,8 +82,7 @@ class LiveEngine(SlamReads):
         self._batch_newest = self._mapped   # newest frame of the batch the mapper is working on
         self._settled = self._mapped        # newest frame whose mapper step (loop closure included) is done
         self._new_loops: list = []           # LoopRecords closed since the tracker last took them (FrameResult.loops)
-        # live.checkpoint published: the tracking state after each frame not yet settled, and the
-        # callback of a checkpoint the mapper saves after its next step (request_snapshot)
+        # live.checkpoint published: tracking states of frames not yet settled, the checkpoint callback
         self._tracking_states: dict[int, tuple[str, str]] = {}
         self._snapshot_callback = None
         self.snapshots = 0
@@ -142,10 +134,12 @@ class LiveEngine(SlamReads):
             self.lag_keyframes.append(sum(self.slam.is_keyframe(k) for k in range(version.frame_index + 1, t)))
         with self._cond:
             loops, self._new_loops = self._new_loops, []
-        # Mapping happens later in the mapper thread (which skips a lost frame: SplaTAM.map_frame);
-        # the time reported as mapping is the time this frame waited for the map.
+        # Mapped later in the mapper thread (not a lost frame); "mapping" time: this frame's wait for the map.
         result = self.slam.result(frame, t, w2c, tracked, MapStats(), len(version), time.perf_counter() - start,
                                   waited, map_version=version.number, loops=loops)
+        if self.paced and result.tracking_coverage is not None and \
+                result.tracking_coverage < (self.config.hurry_coverage or 0):
+            self._left_map = t
         with self._cond:
             self._pending.append((t, frame, w2c))
             self._handed = t
@@ -183,7 +177,7 @@ class LiveEngine(SlamReads):
                               pace_keyframes=self.config.pace_keyframes if self.paced else None, **deferred,
                               mapper_seconds=self.mapper_seconds, tracker_wait_seconds=self.wait_seconds,
                               gaussians_added=self.num_added, gaussians_pruned=self.num_pruned,
-                              densified_between=self.densified_between, **lags))
+                              densified_between=self.densified_between, hurried_steps=self.hurried, **lags))
 
     def _wait_for_map(self, t: int, max_lag: int | None = None) -> float:
         """Block while the map is too far behind frame t (the policy above; `max_lag` instead of the
@@ -275,8 +269,7 @@ class LiveEngine(SlamReads):
         slam = self.slam
         newest = self._batch_newest = batch[-1][0]
         between = None
-        if self.config.map == "keyframes" and not self.config.wait:
-            # Only keyframes are mapped (frame 0 is one); a batch without one settles at no cost.
+        if self.config.map == "keyframes" and not self.config.wait:     # only keyframes (frame 0 is one)
             between = batch[-1] if self.config.densify_between and not slam.is_keyframe(newest) else None
             batch = [b for b in batch if slam.is_keyframe(b[0])]
             if not batch:
@@ -298,7 +291,8 @@ class LiveEngine(SlamReads):
                 # live.publish_densified: the keyframe's new Gaussians reach the tracker before its
                 # optimisation (the keyframe still counts as unmapped: pace_keyframes, drain)
                 early = (lambda t=t: slam.publish(t)) if self.config.publish_densified else None
-                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every), densified=early)
+                stats = slam.map_frame(frame, w2c, t, optimise=(t == mapped_until or every), densified=early,
+                                       stop=lambda done, t=t: self._stop(done, t))
                 self.num_added += stats.added
                 self.num_pruned += stats.pruned
         if every and between is not None and self._densify_between(*between):
@@ -321,6 +315,12 @@ class LiveEngine(SlamReads):
             self._settled = newest          # its loop closure done too: drain() may return
             self._cond.notify_all()
         self._snapshot_if_wanted(newest)
+
+    def _stop(self, done: int, t: int) -> bool:
+        """live.hurry_coverage: keyframe t's step ends after hurry_iterations once a frame after t
+        was tracked against a map that covered too little of it (the camera is leaving the map)."""
+        self.hurried += (stop := self._left_map > t and done >= self.config.hurry_iterations)
+        return stop
 
     def _densify_between(self, t: int, frame, w2c) -> bool:
         """live.densify_between: new Gaussians from frame t, a frame between keyframes (no optimisation;

@@ -246,3 +246,23 @@ def test_densify_under_mapping_exposure_brings_new_colours_to_the_maps_exposure(
     rendered = out.color.numpy()
     assert np.abs(restored - rendered)[covered].mean() < 0.5 * np.abs(dark - rendered)[covered].mean()
     assert abs(float(restored[covered].mean()) - float(rendered[covered].mean())) < 0.02
+
+
+def test_a_mapping_step_stopped_after_k_iterations_is_the_k_iteration_step():
+    """optimise_map's `stop(done)` (the live engine's hurried keyframe steps) ends the step after
+    the iteration it returns True for: the map is exactly that of a step of that many iterations."""
+    src = small_source(n=1, w=64, h=48)
+    f = src[0]
+    view = View(torch.as_tensor(f.color), torch.as_tensor(f.depth), np.eye(4))
+    cfg = MappingConfig(tile_fraction=0.5, min_tiles=0)
+    maps, asked = [], []
+    for iterations, stop in ((3, None), (10, lambda done: asked.append(done) or done == 3)):
+        m = map_from_frame(f)
+        with torch.no_grad():
+            m.colors += 0.2
+        optimise_map(m, [view], f.intrinsics, cfg, iterations, scene_radius=2.0, rng=np.random.default_rng(0),
+                     stop=stop)
+        maps.append(m)
+    assert asked == [1, 2, 3]
+    for name in ("means", "colors", "log_scales"):
+        assert torch.equal(getattr(maps[0], name), getattr(maps[1], name))

@@ -206,9 +206,9 @@ def test_live_preset_optimises_every_keyframe_a_held_mapper_finds():
             gate.wait(120)
         mapped(batch)
 
-    def recorded(frame, w2c, t, optimise=True, densified=None):
+    def recorded(frame, w2c, t, optimise=True, **kwargs):
         calls.append((t, optimise))
-        return map_frame(frame, w2c, t, optimise=optimise, densified=densified)
+        return map_frame(frame, w2c, t, optimise=optimise, **kwargs)
     engine._map, engine.slam.map_frame = held, recorded
     try:
         for _ in range(7):
@@ -424,11 +424,11 @@ def test_live_publish_densified_hands_the_tracker_a_keyframes_new_gaussians_befo
         densified.append((t, len(slam.map)))       # the map's size once frame t is densified
         return added
 
-    def held(window, first=False, iterations=None):
+    def held(window, first=False, **kwargs):
         if not first:                    # a keyframe after frame 0: hold its optimisation
             entered.set()
             gate.wait(120)
-        return optimise(window, first=first, iterations=iterations)
+        return optimise(window, first=first, **kwargs)
     slam.optimise, slam.densify = held, counted
     try:
         for _ in range(2):               # frame 1: a keyframe (keyframes.every 2)
@@ -478,3 +478,52 @@ def test_live_keyframe_mapper_densifies_from_frames_between_keyframes(between):
         assert births <= set(keyframes)
         assert all(version.frame_index == max(k for k in keyframes if k <= t) for t, version in versions)
     pipe.finish()
+
+
+@pytest.mark.parametrize("live_source", [True, False])
+def test_live_hurry_ends_a_keyframe_step_once_a_later_frame_left_the_map(monkeypatch, live_source):
+    """`live.hurry_coverage`: on a live source, a keyframe's mapper step ends after
+    `hurry_iterations` once a frame tracked after that keyframe was covered less than that share by
+    its map (the camera pans past a map that lags it): the keyframe owed meanwhile is mapped sooner.
+    Frame 0's step and every step of a capture read frame by frame run all their iterations."""
+    import dataclasses
+
+    import splat_core.slam as slam_module
+    runs, real = [], slam_module.optimise_map
+
+    def counted(*args, stop=None, **kwargs):         # iterations each mapper step ran
+        done = []
+        out = real(*args, stop=lambda i: done.append(i) or (stop is not None and stop(i)), **kwargs)
+        runs.append(len(done))
+        return out
+    monkeypatch.setattr(slam_module, "optimise_map", counted)
+    config = _paced_config(live={"hurry_coverage": 0.5, "hurry_iterations": 2},
+                           mapping={"first_frame_iterations": 5, "iterations": 6})
+    source = _played(12) if live_source else SyntheticSource(n_frames=12, width=80, height=60, seed=0)
+    pipe = Pipeline(source, config, engine="live")
+    engine, gate = pipe.engine, threading.Event()
+    assert engine.paced == live_source
+    _held(engine, gate)
+    result = engine.slam.result
+
+    def leaving(*args, **kwargs):                     # frames 2 on: the map covers a tenth of them
+        r = result(*args, **kwargs)
+        return dataclasses.replace(r, tracking_coverage=0.1) if r.index >= 2 else r
+    engine.slam.result = leaving
+    try:
+        steps = 8 if live_source else 3      # a capture: the tracker waits beyond max_keyframe_lag
+        for _ in range(steps):
+            pipe.step()
+    finally:
+        gate.set()
+    while pipe.step() is not None:
+        pass
+    metrics = pipe.finish()
+    assert runs[0] == 5 and len(runs) >= 3                    # frame 0's step is whole
+    hurried = metrics["live"]["hurried_steps"]
+    if live_source:
+        assert runs[1] == 2                                   # keyframe 1, frames 2-7 tracked meanwhile
+        # later steps run while frames are tracked: cut at the first check after a frame left the map
+        assert all(2 <= r <= 6 for r in runs[1:]) and hurried >= sum(r < 6 for r in runs[1:]) >= 1
+    else:
+        assert set(runs[1:]) == {6} and hurried == 0
