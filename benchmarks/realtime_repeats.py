@@ -63,6 +63,8 @@ def main() -> None:
         line = args.ate_line
         if line is None:
             line = run(path, presets[0], "live", None, work / "all_frames", None).get("ate")
+            if line is None:
+                sys.exit(f"realtime_repeats: the all-frames run of {presets[0]} on {path} gave no ATE (see {work})")
         rows = []
         for r in range(1, args.rounds + 1):
             for preset in presets:
