@@ -173,10 +173,9 @@ class LostTracking:
         loss = per_pixel(result)
         if result.loss is None:          # nothing evaluated (no polish stage): motion only
             loss = float(np.median(self.recent)) if self.recent else 0.0
-        coverage = result.valid_pixels / result.depth_pixels if result.depth_pixels else None
         metres, degrees = relative_motion(w2c_good, result.w2c)
         seconds = max(frame.timestamp - self.good[2], max(1, frame.index - self.good[1]) / NOMINAL_FPS)
-        return lost_reason(Evidence(loss, coverage, metres, degrees, seconds), list(self.recent), self.config)
+        return lost_reason(Evidence(loss, result.coverage, metres, degrees, seconds), list(self.recent), self.config)
 
     def relocalise(self, frame: Frame, gaussians: Gaussians, w2c_good: np.ndarray, keyframes: list,
                    failed: TrackResult | None, why: str) -> tuple[TrackResult | None, str | None]:

@@ -154,8 +154,7 @@ class SplaTAM(SlamState):
                            tracking_seconds=tracking_seconds, mapping_seconds=mapping_seconds,
                            tracking_loss=tracked.loss if tracked else None,
                            tracking_iterations=tracked.iterations if tracked else 0,
-                           tracking_coverage=(tracked.valid_pixels / tracked.depth_pixels
-                                              if tracked and tracked.depth_pixels else None),
+                           tracking_coverage=tracked.coverage if tracked else None,
                            tracking_start=tracked.start if tracked else None, source_index=frame.index,
                            map_version=map_version)
 

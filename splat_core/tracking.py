@@ -64,7 +64,12 @@ class TrackResult:
     iterations: int
     valid_pixels: int     # pixels in the loss mask at the best pose
     start: str = "prediction"   # the candidate the polish started from
-    depth_pixels: int = 0       # loss pixels with valid depth, covered by the map or not (valid_pixels / depth_pixels: coverage)
+    depth_pixels: int = 0       # loss pixels with valid depth, covered by the map or not
+
+    @property
+    def coverage(self) -> float | None:
+        """The share of the loss's valid-depth pixels the map covered (None: no valid depth)."""
+        return self.valid_pixels / self.depth_pixels if self.depth_pixels else None
 
 
 @dataclass
