@@ -34,14 +34,23 @@ EXPECTED_KERNELS = 18
 
 
 def kernels_compiled() -> bool:
-    """Whether Numba's cache holds the renderer's forward kernel (index files beside the module, or
-    under NUMBA_CACHE_DIR when that is set)."""
-    import os
+    """Whether Numba's cache holds the renderer's forward kernel compiled for this process's CPU
+    target (the cache keys each kernel by the target's CPU and features, so kernels compiled for
+    other features, splat_core.parallel's vector width among them, do not count)."""
+    try:
+        from numba.core.registry import cpu_target
 
-    if os.environ.get("NUMBA_CACHE_DIR"):
-        return any(Path(os.environ["NUMBA_CACHE_DIR"]).rglob("cpu._forward_kernel-*.nbi"))
-    cache = Path(splat_core.__file__).parent / "render" / "__pycache__"
-    return any(cache.glob("cpu._forward_kernel-*.nbi"))
+        from splat_core.render import cpu
+        index = cpu._forward_kernel._cache._cache_file._load_index()
+        target = cpu_target.target_context.codegen().magic_tuple()
+        return any(key[1] == target for key in index)
+    except (AttributeError, ImportError, IndexError, TypeError):   # Numba's internals moved
+        import os
+
+        if os.environ.get("NUMBA_CACHE_DIR"):
+            return any(Path(os.environ["NUMBA_CACHE_DIR"]).rglob("cpu._forward_kernel-*.nbi"))
+        cache = Path(splat_core.__file__).parent / "render" / "__pycache__"
+        return any(cache.glob("cpu._forward_kernel-*.nbi"))
 
 
 def warm_up(frames: int = 2) -> float:

@@ -149,12 +149,13 @@ def capture(args):
 
     original_optimise = slam.optimise_map
 
-    def optimise_map(m, window, intr, config, iterations, scene_radius, rng, renderer=None):
+    def optimise_map(m, window, intr, config, iterations, scene_radius, rng, renderer=None, stop=None):
         if state["frame"] >= args.frame and state["call"] is None:
             copy_m = GaussianMap(*(m.params[n].detach().clone() for n in m.params), m.birth_frame.clone())
             state["call"] = (copy_m, list(window), intr, config, iterations, scene_radius, copy.deepcopy(rng),
                              renderer)
-        return original_optimise(m, window, intr, config, iterations, scene_radius, rng, renderer=renderer)
+        return original_optimise(m, window, intr, config, iterations, scene_radius, rng, renderer=renderer,
+                                 stop=stop)
     slam.optimise_map = optimise_map
 
     out = tempfile.mkdtemp(prefix="mapper_profile_")

@@ -25,6 +25,7 @@ from numba import njit
 
 from .camera import Intrinsics, quat_to_rotmat_np, rotmat_to_quat
 from .errors import InputError
+from .parallel import prefer_512_bit_vectors  # noqa: F401  (before the kernels: their vector width)
 
 Z_TOLERANCE = (0.02, 0.01)   # relative, absolute (metres): a point this much behind the z-buffer is hidden
 

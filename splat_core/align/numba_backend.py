@@ -37,6 +37,7 @@ from ..camera import Intrinsics, backproject, invert_pose
 from ..frame import resize_to
 from ..gaussians import Gaussians
 from ..render import Render, render
+from ..parallel import prefer_512_bit_vectors  # noqa: F401  (before the kernels: their vector width)
 
 
 @dataclass

@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from ..camera import Intrinsics, invert_pose
+from ..parallel import prefer_512_bit_vectors  # noqa: F401  (before the kernels: their vector width)
 
 BLOCK = 8
 _OFF = 1 << 20     # block coordinates packed into one int64 key (21 bits each)
