@@ -262,7 +262,8 @@ def _exp_overload(x):
     return lambda x: math.exp(x)
 
 
-# Per-tile pixel state of the forward: st[row, field, lane] (one array, so LLVM sees no aliasing).
+# Per-tile pixel state of the forward: st[field * TILE * TILE + row * TILE + lane] (one array with
+# fields at compile-time offsets, so LLVM sees no aliasing), the pixels' coordinates among them.
 _F_T, _F_ACC, _F_ALPHA, _F_LAST, _F_DONE, _F_X, _F_Y = 0, 1, 5, 6, 7, 8, 9
 _F_N = 10
 _NP = TILE * TILE   # pixels in a tile: the stride between the forward state's fields
@@ -280,7 +281,7 @@ def _forward_kernel(params, features, boxes, tile_offsets, isect_gauss, xs, ys, 
     rows' pixels are one branch-free loop (rows of `lanes` == TILE pixels one after another in the
     tile's flat state, `lanes` passed at run time so LLVM vectorises instead of unrolling), each
     pixel doing exactly the reference's per-pixel test (and pixels outside the Gaussian's box in x
-    masked off; rows outside it fail the 1/255 test, the box being a little larger than that cutoff).
+    masked off).
     Outputs per pixel: image (4 channels), alpha, t_final (transmittance after the last kept
     Gaussian), last (1 + tile-list position of the last kept Gaussian, 0 if none); per tile:
     tile_last = max of `last`.
