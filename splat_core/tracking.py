@@ -238,6 +238,7 @@ class ReusedRender(NamedTuple):
     render: object              # the Render
     w2c: np.ndarray             # the pose it was rendered at
     uses: int                   # frames it has served since
+    pyramid: tuple | None = None  # the alignment's arrays of that render per level (AlignResult.first_pyramid)
 
 
 def moved_beyond(w2c_a: np.ndarray, w2c_b: np.ndarray, distance: float) -> bool:
@@ -276,7 +277,8 @@ class Tracker:
         start: Candidate | np.ndarray = np.asarray(w2c_predicted, dtype=np.float64)
         rival = None
         if tc.align.iterations > 0:
-            aligned = self.align(g, color, depth, start, None if model is None else (model.render, model.w2c))
+            aligned = self.align(g, color, depth, start,
+                                 None if model is None else (model.render, model.w2c, model.pyramid))
             full = observations[0] if self.stages and self.stages[0][0] == self.intrinsics \
                 else self.observe(color, depth, self.intrinsics)
             if model is not None:        # the render is not at the prediction: its loss costs a render of its own
@@ -288,7 +290,7 @@ class Tracker:
                         prediction = candidate("prediction", start, full.render(self.renderer, g, start), full, tc)
             else:
                 if reuse and tc.align.reuse_render > 0:
-                    self._model = ReusedRender(gaussians, g, aligned.first_render, start, 0)
+                    self._model = ReusedRender(gaussians, g, aligned.first_render, start, 0, aligned.first_pyramid)
                 prediction = candidate("prediction", start, full.gather(aligned.first_render), full, tc)
             if prediction is None:       # reuse_rival false, within reuse_rival_beyond: the aligned pose, unchallenged
                 start = Candidate("aligned", aligned.w2c, float("nan"), 0)

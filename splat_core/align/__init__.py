@@ -3,7 +3,7 @@
     align_to_map(gaussians, color, depth, intrinsics, w2c_init, *, backend="auto", levels=3, iterations=10,
                  passes=1, color_weight=1.0, silhouette=0.99, near=0.01, max_distance=0.1,
                  depth_noise=False, live_stride=1, sync=None, exposure=False)
-        -> AlignResult(w2c 4 x 4, correspondences, rmse_depth, first_render)
+        -> AlignResult(w2c 4 x 4, correspondences, rmse_depth, first_render, first_pyramid)
 
 gaussians   a `Gaussians` (the map's detached tensors: means N x 3, ...); the map is rendered at
             w2c_init (and again at each solved pose for passes > 1), on the Gaussians' device.
@@ -15,6 +15,8 @@ w2c         4 x 4 float64 numpy: the solved world-to-camera, or w2c_init where t
 correspondences, rmse_depth   the depth residuals of the last iteration at full resolution and
             their point-to-plane RMS (metres; relative to 1 m with depth_noise).
 first_render   the map rendered at w2c_init (a `Render`: callers reuse it).
+first_pyramid  that render's arrays on each pyramid level (Numba backend, without exposure; else
+            None): handed back with the render (`model`), they are not made again.
 
 The solve (numba_backend.py's docstring): point-to-plane depth + grey-level residuals against the
 rendered map, Huber weights, Gauss-Newton coarse to fine over `levels` pyramid levels with
@@ -57,8 +59,8 @@ def align_to_map(gaussians, color, depth, intrinsics: Intrinsics, w2c_init, *, b
                  sync: bool | None = None, model: tuple | None = None, exposure: bool = False) -> AlignResult:
     """Solve for the w2c of (colour, depth at `intrinsics`) against the map rendered near w2c_init,
     by `backend` (see the module docstring). `sync` concerns the torch backend only (the Numba one
-    always stops a converged level early). `model`: (a Render, its w2c) to align against instead of
-    rendering at w2c_init in the first pass (Numba backend; the torch one renders)."""
+    always stops a converged level early). `model`: (a Render, its w2c[, its pyramid]) to align against
+    instead of rendering at w2c_init in the first pass (Numba backend; the torch one renders)."""
     options = dict(levels=levels, iterations=iterations, passes=passes, color_weight=color_weight,
                    silhouette=silhouette, near=near, max_distance=max_distance, depth_noise=depth_noise,
                    live_stride=live_stride, tolerance=tolerance, exposure=exposure)

@@ -46,6 +46,7 @@ class AlignResult:
     correspondences: int        # depth residuals in the last iteration at full resolution
     rmse_depth: float           # their point-to-plane RMS (metres; relative to 1 m with depth_noise)
     first_render: Render        # the map rendered at w2c_init (the caller reuses it)
+    first_pyramid: tuple | None = None  # that render's side of each pyramid level (model[2] for its reuse)
 
 
 def _grey(color: np.ndarray) -> np.ndarray:
@@ -103,12 +104,11 @@ def _normals(points: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndar
     return n, mask
 
 
-class _Level:
-    """One pyramid level of the rendered model and the live frame."""
+class _ModelSide:
+    """The rendered map's arrays of one pyramid level: the frames aligned against one reused render
+    (tracking.align.reuse_render) share them."""
 
-    def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid, live_depth, live_grey,
-                 live_stride: int = 1):
-        self.intr = intr
+    def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid):
         self.model_points = backproject(np.where(model_valid, model_depth, 0.0), intr)
         self.model_normals, self.model_ok = _normals(self.model_points, model_valid)
         self.model_grey = model_grey
@@ -116,6 +116,19 @@ class _Level:
         gy = cv2.Sobel(model_grey, cv2.CV_64F, 0, 1, ksize=3) / 8.0
         self.model_grad = np.ascontiguousarray(np.stack([gx, gy], axis=-1))
         self.color_ok = cv2.erode(model_valid.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+
+
+class _Level:
+    """One pyramid level of the rendered model and the live frame."""
+
+    def __init__(self, intr: Intrinsics, model_depth, model_grey, model_valid, live_depth, live_grey,
+                 live_stride: int = 1, side: _ModelSide | None = None):
+        """`side`: the model's arrays made already (model_depth, model_grey and model_valid unused)."""
+        self.intr = intr
+        self.side = _ModelSide(intr, model_depth, model_grey, model_valid) if side is None else side
+        self.model_points, self.model_normals, self.model_ok = (self.side.model_points, self.side.model_normals,
+                                                                self.side.model_ok)
+        self.model_grey, self.model_grad, self.color_ok = self.side.model_grey, self.side.model_grad, self.side.color_ok
         live_valid = live_depth > 0
         if live_stride > 1:   # sparse tracking: every live_stride-th pixel in x and y
             grid = np.zeros_like(live_valid)
@@ -223,43 +236,53 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
     live_stride > 1 uses every live_stride-th live pixel (in x and y) at the finest level only.
     A level stops when a step changes no entry of the pose by `tolerance` or more.
 
-    model: (a Render of `gaussians`, the w2c it was rendered at) to align against in the first pass
-    instead of rendering at w2c_init (tracking.align.reuse_render): the solve starts from w2c_init's
-    pose relative to that render.
+    model: (a Render of `gaussians`, the w2c it was rendered at[, its pyramid]) to align against in
+    the first pass instead of rendering at w2c_init (tracking.align.reuse_render): the solve starts
+    from w2c_init's pose relative to that render. Its pyramid (the first_pyramid of the AlignResult
+    that made the render) spares remaking the render's side of every level; without `exposure`
+    only, whose gain makes that side depend on the live frame.
 
     Falls back to w2c_init when the map explains too little of the frame (fewer than 50 residuals)."""
     w2c, correspondences, rmse = np.asarray(w2c_init, dtype=np.float64), 0, float("inf")
     live_grey = _grey(color)
-    first = None
+    first = first_pyramid = None
     for p in range(passes):
         X0 = np.eye(4)
+        pyramid = None
         if p == 0 and model is not None:
             out, w2c = model[0], np.asarray(model[1], dtype=np.float64)
             X0 = w2c @ invert_pose(np.asarray(w2c_init, dtype=np.float64))   # live camera -> rendered camera
+            pyramid = None if exposure or len(model) < 3 else model[2]
         else:
             out = render(gaussians, intr, w2c, near=near)
-        first = out if first is None else first
-        alpha = out.alpha.detach().cpu().numpy().astype(np.float64)
-        valid = alpha > silhouette
-        model_depth = np.where(valid, out.depth.detach().cpu().numpy() / np.maximum(alpha, 1e-6), 0.0)
-        model_grey = _grey(out.color.detach().cpu().numpy().astype(np.float64))
-        if exposure:
-            model_grey = model_grey * exposure_gain(live_grey, model_grey, valid & (depth > 0))
+        if pyramid is None:
+            alpha = out.alpha.detach().cpu().numpy().astype(np.float64)
+            valid = alpha > silhouette
+            model_depth = np.where(valid, out.depth.detach().cpu().numpy() / np.maximum(alpha, 1e-6), 0.0)
+            model_grey = _grey(out.color.detach().cpu().numpy().astype(np.float64))
+            if exposure:
+                model_grey = model_grey * exposure_gain(live_grey, model_grey, valid & (depth > 0))
+        sides = [None] * levels
         X = X0
         for level in reversed(range(levels)):
             s = 0.5 ** level
             li = intr if level == 0 else intr.scaled(max(8, round(intr.width * s)), max(8, round(intr.height * s)))
-            lvl = _Level(li, resize_to(model_depth, li, True), resize_to(model_grey, li, False),
-                         resize_to(valid.astype(np.uint8), li, True).astype(bool),
+            if pyramid is None:
+                model_arrays = (resize_to(model_depth, li, True), resize_to(model_grey, li, False),
+                                resize_to(valid.astype(np.uint8), li, True).astype(bool))
+            lvl = _Level(li, *(model_arrays if pyramid is None else (None,) * 3),
                          resize_to(depth.astype(np.float64), li, True), resize_to(live_grey, li, False),
-                         live_stride if level == 0 else 1)
+                         live_stride if level == 0 else 1, side=None if pyramid is None else pyramid[level])
+            sides[level] = lvl.side
             for _ in range(iterations):
                 dX, correspondences, rmse = _gauss_newton_step(lvl, X, color_weight, max_distance, depth_noise)
                 X = dX @ X
                 if np.abs(dX - np.eye(4)).max() < tolerance:
                     break
+        if first is None:
+            first, first_pyramid = out, (None if exposure else tuple(sides))
         if correspondences < 50:
-            return AlignResult(np.asarray(w2c_init, dtype=np.float64), correspondences, rmse, first)
+            return AlignResult(np.asarray(w2c_init, dtype=np.float64), correspondences, rmse, first, first_pyramid)
         # X maps live-camera points into the rendered camera: w2c_live = X^-1 w2c_rendered.
         w2c = invert_pose(X) @ w2c
-    return AlignResult(w2c, correspondences, rmse, first)
+    return AlignResult(w2c, correspondences, rmse, first, first_pyramid)

@@ -141,6 +141,41 @@ def test_a_reused_render_aligns_the_next_frame_as_a_fresh_one_does():
         (_centre_error(reused.w2c, truth), _centre_error(fresh.w2c, truth))
 
 
+def test_a_reused_render_lends_its_pyramid_and_the_pose_is_the_same():
+    """The frames aligned against a reused render share the arrays the alignment made from it on
+    each pyramid level (AlignResult.first_pyramid, handed back as model[2]): they are not made
+    again, and the pose is, bit for bit, the one the render alone gives. With `exposure` the
+    render's grey levels depend on the live frame: no pyramid is handed out."""
+    from splat_core.align import align_to_map, numba_backend
+    m, f1, truth, start = _perturbed_tracking_case()
+    gaussians = m.tensors(detach=True)
+    made = []
+    original = numba_backend._ModelSide
+
+    class Counted(original):
+        def __init__(self, *args, **kwargs):
+            made.append(1)
+            super().__init__(*args, **kwargs)
+    rendered_at = pose_matrix(np.eye(3), (0.02, 0.0, 0.0)) @ truth
+    numba_backend._ModelSide = Counted
+    try:
+        first = align_to_map(gaussians, f1.color, f1.depth, f1.intrinsics, rendered_at)
+        assert len(made) == 3 and len(first.first_pyramid) == 3
+        shared = align_to_map(gaussians, f1.color, f1.depth, f1.intrinsics, start,
+                              model=(first.first_render, rendered_at, first.first_pyramid))
+        assert len(made) == 3
+        anew = align_to_map(gaussians, f1.color, f1.depth, f1.intrinsics, start,
+                            model=(first.first_render, rendered_at))
+        assert len(made) == 6
+        lit = align_to_map(gaussians, f1.color, f1.depth, f1.intrinsics, start, exposure=True,
+                           model=(first.first_render, rendered_at, first.first_pyramid))
+        assert len(made) == 9 and lit.first_pyramid is None
+    finally:
+        numba_backend._ModelSide = original
+    assert np.array_equal(shared.w2c, anew.w2c) and shared.correspondences == anew.correspondences
+    assert shared.rmse_depth == anew.rmse_depth and _centre_error(shared.w2c, truth) < 0.01
+
+
 @pytest.mark.parametrize("rival,beyond,scored", [(True, 0.0, True), (False, 0.0, False), (False, 0.01, True),
                                                  (False, 0.06, False)])
 def test_an_alignment_against_a_reused_render_gone_astray_loses_to_the_prediction_only_when_scored(rival, beyond, scored):
