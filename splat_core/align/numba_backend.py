@@ -267,13 +267,11 @@ def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, int
         for level in reversed(range(levels)):
             s = 0.5 ** level
             li = intr if level == 0 else intr.scaled(max(8, round(intr.width * s)), max(8, round(intr.height * s)))
-            if pyramid is None:
-                model_arrays = (resize_to(model_depth, li, True), resize_to(model_grey, li, False),
-                                resize_to(valid.astype(np.uint8), li, True).astype(bool))
-            lvl = _Level(li, *(model_arrays if pyramid is None else (None,) * 3),
-                         resize_to(depth.astype(np.float64), li, True), resize_to(live_grey, li, False),
-                         live_stride if level == 0 else 1, side=None if pyramid is None else pyramid[level])
-            sides[level] = lvl.side
+            sides[level] = pyramid[level] if pyramid is not None else _ModelSide(
+                li, resize_to(model_depth, li, True), resize_to(model_grey, li, False),
+                resize_to(valid.astype(np.uint8), li, True).astype(bool))
+            lvl = _Level(li, None, None, None, resize_to(depth.astype(np.float64), li, True),
+                         resize_to(live_grey, li, False), live_stride if level == 0 else 1, side=sides[level])
             for _ in range(iterations):
                 dX, correspondences, rmse = _gauss_newton_step(lvl, X, color_weight, max_distance, depth_noise)
                 X = dX @ X
