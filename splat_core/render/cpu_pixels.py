@@ -1,16 +1,20 @@
 """CPU backend, sparse pixels: composite only chosen pixels, with a hand-written backward.
 
 `rasterize_cpu_pixels(..., px, py)` returns what `rasterize_cpu` would give at pixels
-(px[k], py[k]) — features P x C and alpha P — without rendering the image. It shares the binning
-of `cpu.py` (depth sort, per-Gaussian boxes, 16 x 16 tile lists) and evaluates each chosen pixel
-against its tile's sorted list with exactly the dense kernel's per-pixel test: the Gaussian's box
-contains the pixel, power <= 0, alpha = min(0.99, o exp(power)) >= 1/255, and compositing stops
-before the Gaussian that would push transmittance below 1e-4. So the results equal the dense
-render at those pixels (tests check it) while the cost follows the number of pixels.
+(px[k], py[k]) — features P x C and alpha P — without rendering the image. It shares the dense
+path's per-Gaussian boxes and depth sort (`cpu.py`), but bins to the chosen pixels themselves: a
+Gaussian is kept only where its box contains a chosen pixel, and a counting sort gives every pixel
+the list of Gaussians whose box contains it, front to back. Each pixel then evaluates exactly its
+list with the dense kernel's per-pixel test (power <= 0, alpha = min(0.99, o exp(power)) >= 1/255,
+compositing stops before the Gaussian that would push transmittance below 1e-4): the same
+Gaussians in the same order as the dense render's tile list after its box test, so the results
+equal the dense render at those pixels (tests check it) while the cost follows the pixels.
+(Until 2026-12-07 each pixel walked its whole 16 x 16 tile's list, box-testing every entry, and
+every Gaussian in view was sorted and binned: with one pixel in 64, several times the work.)
 
 Tracking on one pixel in a few per tile is what makes it cheap (SPLATONIC, HPCA 2026, tracks
-SplaTAM on one random pixel per 16 x 16 tile); the projection (torch, gradients to the pose) and
-the binning are the same as for a dense render.
+SplaTAM on one random pixel per 16 x 16 tile); the projection (torch, gradients to the pose) is
+the same as for a dense render.
 
 The backward walks each pixel's list back to front, recovering T_i = T_{i+1} / (1 - a_i), and
 writes one gradient row per (pixel, list position); a serial pass adds the rows into the
@@ -26,30 +30,153 @@ from numba import njit, prange
 
 from ..parallel import numba_lock
 from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO, _P_A, _P_B,
-                  _P_C, _P_MX, _P_MY, _P_O, TILE, _bin, _exp, _np, _working_dtype)
+                  _P_C, _P_MX, _P_MY, _P_O, _P_WIDTH, TILE, _consts, _exp, _np, _prepare_gaussians,
+                  _working_dtype, depth_order)
+
+CELL = 8   # side of the square cells that index the chosen pixels (a compile-time shift)
+
+
+@njit(cache=True, nogil=True)
+def _index_pixels(px, py, ncx, ncells):
+    """The chosen pixels by cell: cell_start (ncells + 1) and cell_pix (pixel indices, ascending
+    within a cell)."""
+    cell_start = np.zeros(ncells + 1, dtype=np.int64)
+    for p in range(px.shape[0]):
+        cell_start[(py[p] // CELL) * ncx + px[p] // CELL + 1] += 1
+    for c in range(ncells):
+        cell_start[c + 1] += cell_start[c]
+    cursor = cell_start[:-1].copy()
+    cell_pix = np.empty(px.shape[0], dtype=np.int64)
+    for p in range(px.shape[0]):
+        c = (py[p] // CELL) * ncx + px[p] // CELL
+        cell_pix[cursor[c]] = p
+        cursor[c] += 1
+    return cell_start, cell_pix
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _count_hits(boxes, drawn, cell_start, cell_pix, px, py, ncx, hits):
+    """hits[j]: the chosen pixels inside Gaussian j's box (0 where it has no box)."""
+    for j in prange(boxes.shape[0]):
+        n = 0
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+        if drawn[j]:
+            for cy in range(y0 // CELL, y1 // CELL + 1):
+                for cx in range(x0 // CELL, x1 // CELL + 1):
+                    c = cy * ncx + cx
+                    for k in range(cell_start[c], cell_start[c + 1]):
+                        p = cell_pix[k]
+                        if px[p] >= x0 and px[p] <= x1 and py[p] >= y0 and py[p] <= y1:
+                            n += 1
+        hits[j] = n
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _pair_pixels(boxes, pair_offsets, cell_start, cell_pix, px, py, ncx, pair_pix):
+    """pair_pix[pair_offsets[j]:pair_offsets[j + 1]]: the chosen pixels in Gaussian j's box."""
+    for j in prange(boxes.shape[0]):
+        m = pair_offsets[j]
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+        for cy in range(y0 // CELL, y1 // CELL + 1):
+            for cx in range(x0 // CELL, x1 // CELL + 1):
+                c = cy * ncx + cx
+                for k in range(cell_start[c], cell_start[c + 1]):
+                    p = cell_pix[k]
+                    if px[p] >= x0 and px[p] <= x1 and py[p] >= y0 and py[p] <= y1:
+                        pair_pix[m] = p
+                        m += 1
+
+
+@njit(cache=True, nogil=True)
+def _bin_to_pixels(pair_offsets, pair_pix, P):
+    """Counting sort of the (Gaussian, pixel) pairs by pixel, Gaussians in their (depth) order
+    within a pixel: pix_offsets (P + 1) and pix_gauss."""
+    pix_offsets = np.zeros(P + 1, dtype=np.int64)
+    for m in range(pair_pix.shape[0]):
+        pix_offsets[pair_pix[m] + 1] += 1
+    for p in range(P):
+        pix_offsets[p + 1] += pix_offsets[p]
+    cursor = pix_offsets[:-1].copy()
+    pix_gauss = np.empty(pair_pix.shape[0], dtype=np.int32)
+    for j in range(pair_offsets.shape[0] - 1):
+        for m in range(pair_offsets[j], pair_offsets[j + 1]):
+            p = pair_pix[m]
+            pix_gauss[cursor[p]] = j
+            cursor[p] += 1
+    return pix_offsets, pix_gauss
+
+
+@njit(parallel=True, cache=True, nogil=True)
+def _gather_rows(pick, live, params, boxes, features, order, params_out, boxes_out, feats_out):
+    """Rows `pick` of (live, params, boxes) in that order, with their Gaussians' features."""
+    for j in prange(pick.shape[0]):
+        i = pick[j]
+        g = live[i]
+        order[j] = g
+        for q in range(params.shape[1]):
+            params_out[j, q] = params[i, q]
+        for q in range(4):
+            boxes_out[j, q] = boxes[i, q]
+        for q in range(features.shape[1]):
+            feats_out[j, q] = features[g, q]
+
+
+class _PixelBins:
+    """The binning of one sparse render (what its backward needs too)."""
+
+    __slots__ = ("n", "consts", "order", "params", "feats", "pix_offsets", "pix_gauss")
+
+
+def _bin_pixels(means2d, conics, opacities, features, depths, radii, width, height, dtype, px, py):
+    """Boxes, depth order and per-pixel lists of the Gaussians whose box contains a chosen pixel."""
+    b = _PixelBins()
+    b.n = means2d.shape[0]
+    b.consts = _consts(dtype, width, height)
+    ntx, nty = -(-width // TILE), -(-height // TILE)
+    tiles = np.zeros(ntx * nty, dtype=np.uint8)
+    tiles[(py // TILE) * ntx + px // TILE] = 1
+    live = np.flatnonzero(radii.detach().cpu().numpy() > 0)
+    params = np.empty((live.shape[0], _P_WIDTH), dtype=dtype)
+    boxes = np.empty((live.shape[0], 4), dtype=np.int64)
+    drawn = np.empty(live.shape[0], dtype=np.bool_)
+    _prepare_gaussians(live, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
+                       width, height, b.consts, tiles, ntx, params, boxes, drawn)
+    ncx = -(-width // CELL)
+    cell_start, cell_pix = _index_pixels(px, py, ncx, ncx * -(-height // CELL))
+    hits = np.empty(live.shape[0], dtype=np.int64)
+    _count_hits(boxes, drawn, cell_start, cell_pix, px, py, ncx, hits)
+    kept = np.flatnonzero(hits)
+    pick = kept[depth_order(depths.detach().cpu().numpy()[live[kept]])]   # positions in `live`, front to back
+    L = pick.shape[0]
+    feats = _np(features, dtype)
+    b.order, b.params = np.empty(L, np.int64), np.empty((L, _P_WIDTH), dtype)
+    b.feats, sorted_boxes = np.empty((L, feats.shape[1]), dtype), np.empty((L, 4), np.int64)
+    _gather_rows(pick, live, params, boxes, feats, b.order, b.params, sorted_boxes, b.feats)
+    pair_offsets = np.zeros(L + 1, dtype=np.int64)
+    np.cumsum(hits[pick], out=pair_offsets[1:])
+    pair_pix = np.empty(int(pair_offsets[L]), dtype=np.int64)
+    _pair_pixels(sorted_boxes, pair_offsets, cell_start, cell_pix, px, py, ncx, pair_pix)
+    b.pix_offsets, b.pix_gauss = _bin_to_pixels(pair_offsets, pair_pix, px.shape[0])
+    return b
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def _pixels_forward(params, features, boxes, tile_offsets, isect_gauss, consts, ntx, px, py,
+def _pixels_forward(params, features, pix_offsets, pix_gauss, consts, px, py,
                     out, alpha, t_final, last, contributions):
     amax, amin, tmin = consts[_C_ALPHA_MAX], consts[_C_ALPHA_MIN], consts[_C_T_MIN]
     half, one, zero = consts[_C_HALF], consts[_C_ONE], consts[_C_ZERO]
     C = features.shape[1]
     for p in prange(px.shape[0]):
-        x, y = px[p], py[p]
-        xf, yf = params.dtype.type(x), params.dtype.type(y)
-        t = (y // TILE) * ntx + x // TILE
+        xf, yf = params.dtype.type(px[p]), params.dtype.type(py[p])
         T = one
         acc_alpha = zero
         for c in range(C):
             out[p, c] = zero
         lastk = 0
         n = 0
-        start = tile_offsets[t]
-        for k in range(start, tile_offsets[t + 1]):
-            j = isect_gauss[k]
-            if x < boxes[j, 0] or x > boxes[j, 1] or y < boxes[j, 2] or y > boxes[j, 3]:
-                continue
+        start = pix_offsets[p]
+        for k in range(start, pix_offsets[p + 1]):
+            j = pix_gauss[k]
             dx = params[j, _P_MX] - xf
             dy = params[j, _P_MY] - yf
             power = -half * (params[j, _P_A] * dx * dx + params[j, _P_C] * dy * dy) - params[j, _P_B] * dx * dy
@@ -75,7 +202,7 @@ def _pixels_forward(params, features, boxes, tile_offsets, isect_gauss, consts, 
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def _pixels_backward(params, features, boxes, tile_offsets, isect_gauss, consts, ntx, px, py,
+def _pixels_backward(params, features, pix_offsets, pix_gauss, consts, px, py,
                      t_final, last, row_offsets, grad_out, grad_alpha, rows, row_gauss):
     """rows[r] = (d means2d (2), d conic (3), d opacity, d features (C)) of one (pixel, contributing
     Gaussian); a pixel's rows start at row_offsets[p]."""
@@ -83,18 +210,14 @@ def _pixels_backward(params, features, boxes, tile_offsets, isect_gauss, consts,
     half, one, zero = consts[_C_HALF], consts[_C_ONE], consts[_C_ZERO]
     C = features.shape[1]
     for p in prange(px.shape[0]):
-        x, y = px[p], py[p]
-        xf, yf = params.dtype.type(x), params.dtype.type(y)
-        t = (y // TILE) * ntx + x // TILE
-        start = tile_offsets[t]
+        xf, yf = params.dtype.type(px[p]), params.dtype.type(py[p])
+        start = pix_offsets[p]
         T = t_final[p]
         gat = grad_alpha[p] * t_final[p]
         S = np.zeros(C, dtype=params.dtype)
         r = row_offsets[p + 1]
         for k in range(start + last[p] - 1, start - 1, -1):
-            j = isect_gauss[k]
-            if x < boxes[j, 0] or x > boxes[j, 1] or y < boxes[j, 2] or y > boxes[j, 3]:
-                continue
+            j = pix_gauss[k]
             A, B, Cc, o = params[j, _P_A], params[j, _P_B], params[j, _P_C], params[j, _P_O]
             dx = params[j, _P_MX] - xf
             dy = params[j, _P_MY] - yf
@@ -150,27 +273,26 @@ class _RasterizePixelsCPU(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, features, depths, radii, width, height, px, py):
         dtype = _working_dtype(means2d)
         with numba_lock():
-            b = _bin(means2d, conics, opacities, features, depths, radii, width, height, dtype, {})
-            feats = np.ascontiguousarray(np.concatenate(b.blocks, axis=1)[:, :b.nch])   # depth order
-            P, C = px.shape[0], feats.shape[1]
+            b = _bin_pixels(means2d, conics, opacities, features, depths, radii, width, height, dtype, px, py)
+            P, C = px.shape[0], b.feats.shape[1]
             out = np.empty((P, C), dtype=dtype)
             alpha = np.empty(P, dtype=dtype)
             t_final = np.empty(P, dtype=dtype)
             last = np.empty(P, dtype=np.int64)
             contributions = np.empty(P, dtype=np.int64)
-            _pixels_forward(b.params, feats, b.boxes, b.tile_offsets, b.isect_gauss, b.consts, b.ntx,
-                            px, py, out, alpha, t_final, last, contributions)
-        ctx.saved = (b, feats, px, py, t_final, last, contributions)
+            _pixels_forward(b.params, b.feats, b.pix_offsets, b.pix_gauss, b.consts, px, py,
+                            out, alpha, t_final, last, contributions)
+        ctx.saved = (b, px, py, t_final, last, contributions)
         ctx.like = (means2d.dtype, means2d.device)
         dt, device = ctx.like
         return torch.from_numpy(out).to(device, dt), torch.from_numpy(alpha).to(device, dt)
 
     @staticmethod
     def backward(ctx, grad_out, grad_alpha):
-        b, feats, px, py, t_final, last, contributions = ctx.saved
+        b, px, py, t_final, last, contributions = ctx.saved
         dtype, device = ctx.like
         wd = b.params.dtype
-        P, C = px.shape[0], feats.shape[1]
+        P, C = px.shape[0], b.feats.shape[1]
         go = np.zeros((P, C), dtype=wd) if grad_out is None else _np(grad_out, wd)
         ga = np.zeros(P, dtype=wd) if grad_alpha is None else _np(grad_alpha, wd)
         row_offsets = np.zeros(P + 1, dtype=np.int64)
@@ -179,8 +301,8 @@ class _RasterizePixelsCPU(torch.autograd.Function):
         row_gauss = np.empty(int(row_offsets[-1]), dtype=np.int64)
         grads = np.zeros((b.n, 6 + C), dtype=wd)
         with numba_lock():
-            _pixels_backward(b.params, feats, b.boxes, b.tile_offsets, b.isect_gauss, b.consts, b.ntx,
-                             px, py, t_final, last, row_offsets, go, ga, rows, row_gauss)
+            _pixels_backward(b.params, b.feats, b.pix_offsets, b.pix_gauss, b.consts, px, py,
+                             t_final, last, row_offsets, go, ga, rows, row_gauss)
             _add_rows(b.order, rows, row_gauss, grads)
         g = torch.from_numpy(grads).to(device, dtype)
         return g[:, 0:2], g[:, 2:5], g[:, 5], g[:, 6:], None, None, None, None, None, None

@@ -58,6 +58,33 @@ def test_sparse_pixels_match_the_dense_render(case, dtype):
     assert float(grads_d[-1].abs().max()) > 0, "the pose gradient must be exercised"
 
 
+def _every_pixel():
+    ys, xs = np.mgrid[0:INTR.height, 0:INTR.width]
+    return np.stack([xs.ravel(), ys.ravel()], axis=1)[::-1].copy()     # every pixel, last first
+
+
+def _crowded_pixels():
+    """Many pixels in one 8 x 8 cell of the pixel index, repeated pixels, and cell corners."""
+    block = np.array([[x, y] for y in range(16, 24) for x in range(24, 32)])
+    return np.concatenate([block, block[::7], [[23, 15], [32, 24], [24, 16], [24, 16]]])
+
+
+@pytest.mark.parametrize("which", ["every", "crowded"])
+def test_sparse_pixels_match_the_dense_render_on_any_pixel_set(which):
+    """The per-pixel lists (built through 8 x 8 cells) hold every Gaussian whose box holds the
+    pixel, whatever the pixels: all of them, many in one cell, the same pixel twice."""
+    dtype = torch.float64
+    g = _scene("layers", dtype)
+    pixels = _every_pixel() if which == "every" else _crowded_pixels()
+    out_s, grads_s = _loss_and_grads(g, dtype, True, pixels)
+    out_d, grads_d = _loss_and_grads(g, dtype, False, pixels)
+    for name, a, b in zip(("color", "depth", "alpha"), out_s, out_d):
+        _assert_close(a, b, 1e-10, f"{which} {name}")
+    assert float(out_d[2].max()) > 0.5
+    for name, a, b in zip(GRAD_NAMES, grads_s, grads_d):
+        _assert_close(a, b, 1e-10, f"{which} d/d{name}")
+
+
 def test_sparse_gradcheck_float64():
     g = _gradcheck_scene(False)
     pixels = _pixels(seed=5, n=40)
