@@ -3,14 +3,17 @@
 `rasterize_cpu_pixels(..., px, py)` returns what `rasterize_cpu` would give at pixels
 (px[k], py[k]) — features P x C and alpha P — without rendering the image. It shares the dense
 path's per-Gaussian boxes and depth sort (`cpu.py`), but bins to the chosen pixels themselves: a
-Gaussian is kept only where its box contains a chosen pixel, and a counting sort gives every pixel
-the list of Gaussians whose box contains it, front to back. Each pixel then evaluates exactly its
-list with the dense kernel's per-pixel test (power <= 0, alpha = min(0.99, o exp(power)) >= 1/255,
-compositing stops before the Gaussian that would push transmittance below 1e-4): the same
-Gaussians in the same order as the dense render's tile list after its box test, so the results
-equal the dense render at those pixels (tests check it) while the cost follows the pixels.
-(Until 2026-12-07 each pixel walked its whole 16 x 16 tile's list, box-testing every entry, and
-every Gaussian in view was sorted and binned: with one pixel in 64, several times the work.)
+summed-area table of the chosen pixels counts those inside each Gaussian's box in four reads; only
+Gaussians with one or more are depth-sorted, and a counting sort of their (Gaussian, pixel) pairs
+gives every pixel the list of Gaussians whose box holds it, front to back. Each pixel evaluates
+exactly its list with the dense kernel's per-pixel test (power <= 0, alpha = min(0.99, o exp(power))
+>= 1/255, compositing stops before the Gaussian that would push transmittance below 1e-4): the
+same Gaussians in the same order as the dense render's tile list after its box test, so the results
+equal the dense render at those pixels (to rounding: the dense kernels fuse multiply-adds; tests
+check it) while the cost follows the pixels. (Until 2026-12-07 each pixel walked its whole 16 x 16 tile's list, box-testing every
+entry, and every Gaussian in view was sorted and binned to tiles: with the tracker's one pixel in
+64, the forward took 1.2-1.3x and the backward 1.7x as long, for the same results bit for bit:
+`benchmarks/rasterizer_ab.py --pixels`; docs/benchmarks.md, "Renderer".)
 
 Tracking on one pixel in a few per tile is what makes it cheap (SPLATONIC, HPCA 2026, tracks
 SplaTAM on one random pixel per 16 x 16 tile); the projection (torch, gradients to the pose) is
@@ -33,58 +36,45 @@ from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO
                   _P_C, _P_MX, _P_MY, _P_O, _P_WIDTH, TILE, _consts, _exp, _np, _prepare_gaussians,
                   _working_dtype, depth_order)
 
-CELL = 8   # side of the square cells that index the chosen pixels (a compile-time shift)
-
-
 @njit(cache=True, nogil=True)
-def _index_pixels(px, py, ncx, ncells):
-    """The chosen pixels by cell: cell_start (ncells + 1) and cell_pix (pixel indices, ascending
-    within a cell)."""
-    cell_start = np.zeros(ncells + 1, dtype=np.int64)
+def _pixel_counts(px, py, width, height):
+    """Summed-area table of the chosen pixels: sat[y, x] = how many lie in [0, x) x [0, y)."""
+    sat = np.zeros((height + 1, width + 1), dtype=np.int64)
     for p in range(px.shape[0]):
-        cell_start[(py[p] // CELL) * ncx + px[p] // CELL + 1] += 1
-    for c in range(ncells):
-        cell_start[c + 1] += cell_start[c]
-    cursor = cell_start[:-1].copy()
-    cell_pix = np.empty(px.shape[0], dtype=np.int64)
-    for p in range(px.shape[0]):
-        c = (py[p] // CELL) * ncx + px[p] // CELL
-        cell_pix[cursor[c]] = p
-        cursor[c] += 1
-    return cell_start, cell_pix
+        sat[py[p] + 1, px[p] + 1] += 1
+    for y in range(1, height + 1):
+        for x in range(1, width + 1):
+            sat[y, x] += sat[y, x - 1] + sat[y - 1, x] - sat[y - 1, x - 1]
+    return sat
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _count_hits(boxes, drawn, cell_start, cell_pix, px, py, ncx, hits):
+def _count_hits(boxes, drawn, sat, hits):
     """hits[j]: the chosen pixels inside Gaussian j's box (0 where it has no box)."""
     for j in prange(boxes.shape[0]):
         n = 0
-        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
         if drawn[j]:
-            for cy in range(y0 // CELL, y1 // CELL + 1):
-                for cx in range(x0 // CELL, x1 // CELL + 1):
-                    c = cy * ncx + cx
-                    for k in range(cell_start[c], cell_start[c + 1]):
-                        p = cell_pix[k]
-                        if px[p] >= x0 and px[p] <= x1 and py[p] >= y0 and py[p] <= y1:
-                            n += 1
+            x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1] + 1, boxes[j, 2], boxes[j, 3] + 1
+            n = sat[y1, x1] - sat[y0, x1] - sat[y1, x0] + sat[y0, x0]
         hits[j] = n
 
 
 @njit(parallel=True, cache=True, nogil=True)
-def _pair_pixels(boxes, pair_offsets, cell_start, cell_pix, px, py, ncx, pair_pix):
-    """pair_pix[pair_offsets[j]:pair_offsets[j + 1]]: the chosen pixels in Gaussian j's box."""
+def _pair_pixels(boxes, pair_offsets, sat, by_row, pair_pix):
+    """pair_pix[pair_offsets[j]:pair_offsets[j + 1]]: the chosen pixels in Gaussian j's box, row by
+    row. by_row: the pixel indices ordered by (y, x), so a row's pixels in [x0, x1] are one run of it,
+    found from the summed-area table (pixels in row y left of x: sat[y + 1, x] - sat[y, x])."""
+    W = sat.shape[1] - 1
     for j in prange(boxes.shape[0]):
         m = pair_offsets[j]
-        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
-        for cy in range(y0 // CELL, y1 // CELL + 1):
-            for cx in range(x0 // CELL, x1 // CELL + 1):
-                c = cy * ncx + cx
-                for k in range(cell_start[c], cell_start[c + 1]):
-                    p = cell_pix[k]
-                    if px[p] >= x0 and px[p] <= x1 and py[p] >= y0 and py[p] <= y1:
-                        pair_pix[m] = p
-                        m += 1
+        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1] + 1, boxes[j, 2], boxes[j, 3]
+        for y in range(y0, y1 + 1):
+            left = sat[y + 1, x0] - sat[y, x0]
+            n = sat[y + 1, x1] - sat[y, x1] - left
+            start = sat[y, W] + left
+            for k in range(start, start + n):
+                pair_pix[m] = by_row[k]
+                m += 1
 
 
 @njit(cache=True, nogil=True)
@@ -141,10 +131,9 @@ def _bin_pixels(means2d, conics, opacities, features, depths, radii, width, heig
     drawn = np.empty(live.shape[0], dtype=np.bool_)
     _prepare_gaussians(live, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
                        width, height, b.consts, tiles, ntx, params, boxes, drawn)
-    ncx = -(-width // CELL)
-    cell_start, cell_pix = _index_pixels(px, py, ncx, ncx * -(-height // CELL))
+    sat = _pixel_counts(px, py, width, height)
     hits = np.empty(live.shape[0], dtype=np.int64)
-    _count_hits(boxes, drawn, cell_start, cell_pix, px, py, ncx, hits)
+    _count_hits(boxes, drawn, sat, hits)
     kept = np.flatnonzero(hits)
     pick = kept[depth_order(depths.detach().cpu().numpy()[live[kept]])]   # positions in `live`, front to back
     L = pick.shape[0]
@@ -155,7 +144,7 @@ def _bin_pixels(means2d, conics, opacities, features, depths, radii, width, heig
     pair_offsets = np.zeros(L + 1, dtype=np.int64)
     np.cumsum(hits[pick], out=pair_offsets[1:])
     pair_pix = np.empty(int(pair_offsets[L]), dtype=np.int64)
-    _pair_pixels(sorted_boxes, pair_offsets, cell_start, cell_pix, px, py, ncx, pair_pix)
+    _pair_pixels(sorted_boxes, pair_offsets, sat, np.argsort(py * width + px, kind="stable"), pair_pix)
     b.pix_offsets, b.pix_gauss = _bin_to_pixels(pair_offsets, pair_pix, px.shape[0])
     return b
 
