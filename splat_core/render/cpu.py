@@ -83,12 +83,14 @@ last_stats: dict = {}   # what the most recent forward / backward measured (for 
 # ----------------------------------------------------------------------------- kernels
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts, tile_mask, ntx,
+def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts, tile_table,
                        params, boxes, drawn):
     """Per live Gaussian (order[j]: its index): packed parameters and covered pixel box.
 
     boxes[j] = (x0, x1, y0, y1) inclusive pixel bounds; x0 > x1 when nothing can be covered.
-    drawn[j]: the box reaches a tile with tile_mask != 0.
+    drawn[j]: the box reaches a chosen tile, counted in four reads of tile_table (`tile_table`:
+    a summed-area table of the chosen tiles; a loop over the box's tiles took half the kernel's
+    time, its trip counts of one or two being unpredictable).
     """
     one = consts[_C_ONE]
     zero = consts[_C_ZERO]
@@ -156,10 +158,8 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts,
         boxes[j, 1] = x1
         boxes[j, 2] = y0
         boxes[j, 3] = y1
-        for ty in range(y0 // TILE, y1 // TILE + 1):
-            for tx in range(x0 // TILE, x1 // TILE + 1):
-                if tile_mask[ty * ntx + tx]:
-                    drawn[j] = True
+        tx0, tx1, ty0, ty1 = x0 // TILE, x1 // TILE + 1, y0 // TILE, y1 // TILE + 1
+        drawn[j] = tile_table[ty1, tx1] - tile_table[ty0, tx1] - tile_table[ty1, tx0] + tile_table[ty0, tx0] > 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -591,6 +591,13 @@ class _Binned:
                  "t_final", "last", "tile_last", "n")
 
 
+def tile_table(mask: np.ndarray, ntx: int, nty: int) -> np.ndarray:
+    """Summed-area table of a tile mask: table[ty, tx] = chosen tiles in rows < ty, columns < tx."""
+    table = np.zeros((nty + 1, ntx + 1), dtype=np.int64)
+    table[1:, 1:] = (np.asarray(mask).reshape(nty, ntx) != 0).cumsum(0).cumsum(1)
+    return table
+
+
 def _consts(dtype, width, height) -> np.ndarray:
     c = np.zeros(11, dtype=dtype)
     c[_C_ALPHA_MAX] = ALPHA_MAX
@@ -689,7 +696,7 @@ def _bin(means2d, conics, opacities, features, depths, radii, width, height, dty
     boxes = np.empty((live.shape[0], 4), dtype=np.int64)
     drawn = np.empty(live.shape[0], dtype=np.bool_)
     _prepare_gaussians(live, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
-                       b.width, b.height, b.consts, mask, b.ntx, params, boxes, drawn)
+                       b.width, b.height, b.consts, tile_table(mask, b.ntx, nty), params, boxes, drawn)
     drawn = np.flatnonzero(drawn)
     pick = drawn[depth_order(depths.detach().cpu().numpy()[live[drawn]])]   # positions in `live`, front to back
     L = pick.shape[0]

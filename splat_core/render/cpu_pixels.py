@@ -34,7 +34,7 @@ from numba import njit, prange
 from ..parallel import numba_lock
 from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO, _P_A, _P_B,
                   _P_C, _P_MX, _P_MY, _P_O, _P_WIDTH, TILE, _consts, _exp, _np, _prepare_gaussians,
-                  _working_dtype, depth_order)
+                  _working_dtype, depth_order, tile_table)
 
 @njit(cache=True, nogil=True)
 def _pixel_counts(px, py, width, height):
@@ -130,7 +130,7 @@ def _bin_pixels(means2d, conics, opacities, features, depths, radii, width, heig
     boxes = np.empty((live.shape[0], 4), dtype=np.int64)
     drawn = np.empty(live.shape[0], dtype=np.bool_)
     _prepare_gaussians(live, _np(means2d, dtype), _np(conics, dtype), _np(opacities, dtype),
-                       width, height, b.consts, tiles, ntx, params, boxes, drawn)
+                       width, height, b.consts, tile_table(tiles, ntx, nty), params, boxes, drawn)
     sat = _pixel_counts(px, py, width, height)
     hits = np.empty(live.shape[0], dtype=np.int64)
     _count_hits(boxes, drawn, sat, hits)
