@@ -162,14 +162,18 @@ def _prepare_gaussians(order, means2d, conics, opacities, width, height, consts,
         drawn[j] = tile_table[ty1, tx1] - tile_table[ty0, tx1] - tile_table[ty1, tx0] + tile_table[ty0, tx0] > 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _bin_to_tiles(boxes, ntx, nty, tile_mask):
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _bin_to_tiles(boxes, ntx, nty, tile_mask, threads):
     """Counting sort of (tile, Gaussian) intersections, Gaussians in depth order within a tile.
 
     Only tiles with tile_mask[t] != 0 get lists (the others render empty). Returns gauss_offsets
     (L + 1: each Gaussian's intersections), tile_offsets (ntiles + 1), isect_gauss (sorted
     Gaussian index per intersection) and gauss_slots (for each Gaussian, in its own order, the
     intersections that belong to it).
+
+    In parallel over contiguous chunks of Gaussians, one per thread (`threads`): each counts its intersections
+    per tile, a chunk's place in a tile's list follows the chunks before it, and each fills its
+    places in Gaussian order, so the lists are those of a serial pass.
 
     The tile size is the compile-time TILE: a division by it compiles to a shift, where a
     run-time divisor cost a 64-bit division per box edge (the rasterizer's forward, binning
@@ -178,39 +182,50 @@ def _bin_to_tiles(boxes, ntx, nty, tile_mask):
     tile = TILE
     L = boxes.shape[0]
     ntiles = ntx * nty
-    tile_offsets = np.zeros(ntiles + 1, dtype=np.int64)
+    chunks = max(1, min(threads, L // 1024))
+    counts = np.zeros((chunks, ntiles), dtype=np.int64)
     gauss_offsets = np.zeros(L + 1, dtype=np.int64)
+    for c in prange(chunks):
+        for j in range(c * L // chunks, (c + 1) * L // chunks):
+            x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+            count = 0
+            if x0 <= x1:
+                for ty in range(y0 // tile, y1 // tile + 1):
+                    for tx in range(x0 // tile, x1 // tile + 1):
+                        if tile_mask[ty * ntx + tx]:
+                            counts[c, ty * ntx + tx] += 1
+                            count += 1
+            gauss_offsets[j + 1] = count
     for j in range(L):
-        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
-        count = 0
-        if x0 <= x1:
-            for ty in range(y0 // tile, y1 // tile + 1):
-                for tx in range(x0 // tile, x1 // tile + 1):
-                    if tile_mask[ty * ntx + tx]:
-                        tile_offsets[ty * ntx + tx + 1] += 1
-                        count += 1
-        gauss_offsets[j + 1] = gauss_offsets[j] + count
+        gauss_offsets[j + 1] += gauss_offsets[j]
+    tile_offsets = np.zeros(ntiles + 1, dtype=np.int64)
+    starts = np.empty((chunks, ntiles), dtype=np.int64)
     for t in range(ntiles):
-        tile_offsets[t + 1] += tile_offsets[t]
+        pos = tile_offsets[t]
+        for c in range(chunks):
+            starts[c, t] = pos
+            pos += counts[c, t]
+        tile_offsets[t + 1] = pos
     n = gauss_offsets[L]
-    cursor = tile_offsets[:-1].copy()
     isect_gauss = np.empty(n, dtype=np.int32)
     gauss_slots = np.empty(n, dtype=np.int64)
-    for j in range(L):
-        x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
-        if x0 > x1:
-            continue
-        m = gauss_offsets[j]
-        for ty in range(y0 // tile, y1 // tile + 1):
-            for tx in range(x0 // tile, x1 // tile + 1):
-                t = ty * ntx + tx
-                if not tile_mask[t]:
-                    continue
-                pos = cursor[t]
-                cursor[t] = pos + 1
-                isect_gauss[pos] = j
-                gauss_slots[m] = pos
-                m += 1
+    for c in prange(chunks):
+        cursor = starts[c]
+        for j in range(c * L // chunks, (c + 1) * L // chunks):
+            x0, x1, y0, y1 = boxes[j, 0], boxes[j, 1], boxes[j, 2], boxes[j, 3]
+            if x0 > x1:
+                continue
+            m = gauss_offsets[j]
+            for ty in range(y0 // tile, y1 // tile + 1):
+                for tx in range(x0 // tile, x1 // tile + 1):
+                    t = ty * ntx + tx
+                    if not tile_mask[t]:
+                        continue
+                    pos = cursor[t]
+                    cursor[t] = pos + 1
+                    isect_gauss[pos] = j
+                    gauss_slots[m] = pos
+                    m += 1
     return gauss_offsets, tile_offsets, isect_gauss, gauss_slots
 
 
@@ -707,7 +722,8 @@ def _bin(means2d, conics, opacities, features, depths, radii, width, height, dty
     _gather_sorted(pick, live, params, boxes, feats, b.order, b.params, b.boxes, blocks)
     b.blocks = list(blocks)
     t1 = time.perf_counter()
-    b.gauss_offsets, b.tile_offsets, b.isect_gauss, b.gauss_slots = _bin_to_tiles(b.boxes, b.ntx, nty, mask)
+    lists = _bin_to_tiles(b.boxes, b.ntx, nty, mask, numba.get_num_threads())
+    b.gauss_offsets, b.tile_offsets, b.isect_gauss, b.gauss_slots = lists
     # Pixel coordinates in the working dtype, padded to whole tiles (lanes past the edge).
     b.xs = np.arange(b.ntx * TILE, dtype=dtype)
     b.ys = np.arange(nty * TILE, dtype=dtype)

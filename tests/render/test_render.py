@@ -264,6 +264,24 @@ def test_count_intersections_matches_stats():
     assert n == cpu_backend.last_stats["intersections"] > 0
 
 
+@pytest.mark.parametrize("threads", [2, 3, 7])
+def test_tile_binning_in_chunks_equals_one_pass(threads):
+    """_bin_to_tiles splits the Gaussians into one chunk per thread: the lists must be those of a
+    single pass (every tile's Gaussians in order, each Gaussian's slots), whatever the split."""
+    rng = np.random.default_rng(threads)
+    ntx, nty, L = 20, 15, 5000
+    x0, y0 = rng.integers(0, 320, L), rng.integers(0, 240, L)
+    boxes = np.stack([x0, np.minimum(x0 + rng.integers(0, 40, L), 319), y0,
+                      np.minimum(y0 + rng.integers(0, 40, L), 239)], axis=1).astype(np.int64)
+    boxes[::13, 1] = boxes[::13, 0] - 1                 # boxes that cover nothing
+    mask = (rng.random(ntx * nty) < 0.5).astype(np.uint8)
+    one = cpu_backend._bin_to_tiles(boxes, ntx, nty, mask, 1)
+    split = cpu_backend._bin_to_tiles(boxes, ntx, nty, mask, threads)
+    assert one[0][-1] > L
+    for a, b in zip(one, split):
+        np.testing.assert_array_equal(a, b)
+
+
 # ----------------------------------------------------------------------------- CUDA (gsplat)
 
 def _needs_cuda():
