@@ -46,7 +46,10 @@ def choose_pixels(rule: str, color: np.ndarray, depth: np.ndarray, tile: int, pe
     padded = np.full((by * tile, bx * tile), -np.inf)
     padded[:H, :W] = score
     blocks = padded.reshape(by, tile, bx, tile).transpose(0, 2, 1, 3).reshape(by * bx, tile * tile)
-    best = np.argsort(-blocks, axis=1, kind="stable")[:, :per_tile]
+    if per_tile == 1:   # the first of the best, as the stable sort below picks it, without sorting
+        best = np.argmax(blocks, axis=1)[:, None]
+    else:
+        best = np.argsort(-blocks, axis=1, kind="stable")[:, :per_tile]
     keep = np.isfinite(np.take_along_axis(blocks, best, axis=1))
     block_y, block_x = np.divmod(np.repeat(np.arange(by * bx), best.shape[1]).reshape(best.shape), bx)
     ys = (block_y * tile + best // tile)[keep]

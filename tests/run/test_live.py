@@ -50,6 +50,26 @@ def test_pixel_rules_pick_valid_pixels_in_every_block(rule):
     assert len(np.unique(y * 160 + x)) == len(x)
 
 
+@pytest.mark.parametrize("rule", ["random", "depth_edges"])
+def test_one_pixel_per_block_is_the_best_scored_valid_pixel_of_the_block(rule):
+    from splat_core.pixel_selection import _score
+    frame = _source(1)[0]
+    depth = frame.depth.copy()
+    depth[:20, :40] = 0
+    depth[60:, 100:] = np.where(np.arange(60)[:, None] % 3 == 0, depth[60:, 100:], 0)   # sparse rows
+    pixels = choose_pixels(rule, frame.color, depth, 8, 1, np.random.default_rng(3))
+    score = np.where(depth > 0, _score(rule, frame.color, depth, np.random.default_rng(3)), -np.inf)
+    H, W = depth.shape
+    expected = []
+    for by in range(0, H, 8):
+        for bx in range(0, W, 8):
+            block = score[by:by + 8, bx:bx + 8]
+            if np.isfinite(block).any():
+                k = int(np.flatnonzero(block == block.max())[0])
+                expected.append((by + k // block.shape[1]) * W + bx + k % block.shape[1])
+    assert np.array_equal(pixels[:, 1] * W + pixels[:, 0], np.sort(expected))
+
+
 def test_gradient_rule_takes_the_strongest_edge_of_a_block():
     color = np.zeros((16, 16, 3), np.float32)
     color[:, 5:] = 1.0                                     # one vertical edge between x = 4 and 5
