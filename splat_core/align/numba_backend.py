@@ -134,8 +134,13 @@ class _Level:
             grid = np.zeros_like(live_valid)
             grid[::live_stride, ::live_stride] = True
             live_valid &= grid
-        self.live_points = np.ascontiguousarray(backproject(live_depth, intr)[live_valid])
-        self.live_grey = np.ascontiguousarray(live_grey[live_valid])
+        v, u = np.nonzero(live_valid)        # camera.backproject's arithmetic, at the valid pixels only
+        z = live_depth[v, u].astype(np.float64)
+        self.live_points = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
+        self.live_grey = np.ascontiguousarray(live_grey[v, u])
+        # tracking.align.depth_noise: residuals weighed by the sensor's noise at 1 m over its noise here
+        self.noise_scale = _noise(1.0) / _noise(self.live_points[:, 2])
+        self.ones = np.ones(len(self.live_points))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -196,12 +201,37 @@ def _noise(z):
     return 0.0012 + 0.0019 * (z - 0.4) ** 2
 
 
-def _huber_normal_equations(r: np.ndarray, J: np.ndarray, floor: float, weight: float):
-    """Weighted J^T W J and J^T W r, W = Huber weights over a robust scale estimate."""
-    sigma = max(1.4826 * float(np.median(np.abs(r))), floor)
-    w = weight * np.minimum(1.0, 1.345 * sigma / np.maximum(np.abs(r), 1e-12)) / sigma ** 2
-    Jw = J * w[:, None]
-    return Jw.T @ J, Jw.T @ r
+@numba.njit(cache=True, nogil=True)
+def _add_huber_system(r, J, ok, scale, floor, weight, H, g):
+    """H += J^T W J and g += J^T W r over the rows with ok (r and J times scale[i]); W: Huber
+    weights over a robust scale (1.4826 x the median |r|, at least floor) times weight / scale^2.
+    Returns the sum of the rows' squared (scaled) residuals."""
+    n = 0
+    for i in range(r.shape[0]):
+        n += ok[i]
+    a = np.empty(n)
+    k = 0
+    for i in range(r.shape[0]):
+        if ok[i]:
+            a[k] = abs(r[i] * scale[i])
+            k += 1
+    sigma = max(1.4826 * np.median(a), floor)
+    squares = 0.0
+    for i in range(r.shape[0]):
+        if not ok[i]:
+            continue
+        ri = r[i] * scale[i]
+        w = weight * min(1.0, 1.345 * sigma / max(abs(ri), 1e-12)) / (sigma * sigma) * scale[i] * scale[i]
+        squares += ri * ri
+        for p in range(6):
+            wp = w * J[i, p]
+            g[p] += wp * r[i]
+            for q in range(p + 1):
+                H[p, q] += wp * J[i, q]
+    for p in range(6):
+        for q in range(p):
+            H[q, p] = H[p, q]
+    return squares
 
 
 def _gauss_newton_step(level: _Level, X: np.ndarray, color_weight: float, max_distance: float,
@@ -211,19 +241,15 @@ def _gauss_newton_step(level: _Level, X: np.ndarray, color_weight: float, max_di
     r_d, J_d, ok_d, r_c, J_c, ok_c = _linearise(
         level.live_points, level.live_grey, X, i.fx, i.fy, i.cx, i.cy, level.model_points,
         level.model_normals, level.model_ok, level.model_grey, level.model_grad, level.color_ok, max_distance)
-    if depth_noise:
-        s = _noise(1.0) / _noise(level.live_points[:, 2])
-        r_d, J_d = r_d * s, J_d * s[:, None]
-    r_d, J_d = r_d[ok_d], J_d[ok_d]
-    count = len(r_d)
+    count = int(ok_d.sum())
     if count < 50:
         return np.eye(4), count, float("inf")
-    H, g = _huber_normal_equations(r_d, J_d, 1e-4, 1.0)
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    squares = _add_huber_system(r_d, J_d, ok_d, level.noise_scale if depth_noise else level.ones, 1e-4, 1.0, H, g)
     if color_weight > 0 and ok_c.sum() >= 50:
-        Hc, gc = _huber_normal_equations(r_c[ok_c], J_c[ok_c], 1e-3, color_weight)
-        H, g = H + Hc, g + gc
+        _add_huber_system(r_c, J_c, ok_c, level.ones, 1e-3, color_weight, H, g)
     H += 1e-6 * np.trace(H) / 6 * np.eye(6)
-    return _se3_exp(-np.linalg.solve(H, g)), count, float(np.sqrt(np.mean(r_d ** 2)))
+    return _se3_exp(-np.linalg.solve(H, g)), count, float(np.sqrt(squares / count))
 
 
 def align_to_map(gaussians: Gaussians, color: np.ndarray, depth: np.ndarray, intr: Intrinsics,

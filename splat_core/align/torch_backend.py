@@ -190,7 +190,7 @@ def masked_median(values: torch.Tensor, ok: torch.Tensor, count: torch.Tensor) -
 
 
 def huber_normal_equations(r, J, ok, count, floor: float, weight: float):
-    """numba_backend._huber_normal_equations over the ok entries (the others weigh 0)."""
+    """numba_backend._add_huber_system over the ok entries (the others weigh 0)."""
     absr = r.abs()
     sigma = torch.clamp(1.4826 * masked_median(absr, ok, count), min=floor)
     w = weight * torch.clamp(1.345 * sigma / torch.clamp(absr, min=1e-12), max=1.0) / sigma ** 2

@@ -52,6 +52,27 @@ def test_direct_alignment_jacobians_match_finite_differences():
         assert np.allclose(fd_c, J_c[same_c, k], rtol=1e-3, atol=1e-6 * np.abs(J_c[:, k]).max())
 
 
+def test_huber_system_equals_the_weighted_least_squares_formula():
+    """_add_huber_system's loops against the formula in numpy: sigma = max(1.4826 median |s r|, floor),
+    w = weight min(1, 1.345 sigma / |s r|) / sigma^2, H = sum w (s J)(s J)^T, g = sum w (s J)(s r)."""
+    from splat_core.align.numba_backend import _add_huber_system
+    rng = np.random.default_rng(7)
+    n = 1001
+    r = rng.standard_t(2, n) * 0.01                      # heavy tails: some rows beyond the Huber knee
+    J = rng.normal(size=(n, 6))
+    ok = rng.random(n) < 0.8
+    scale = rng.uniform(0.2, 1.5, n)
+    H, g = np.zeros((6, 6)), np.zeros(6)
+    squares = _add_huber_system(r, J, ok, scale, 1e-4, 0.7, H, g)
+    rs, Js = (r * scale)[ok], (J * scale[:, None])[ok]
+    sigma = max(1.4826 * float(np.median(np.abs(rs))), 1e-4)
+    w = 0.7 * np.minimum(1.0, 1.345 * sigma / np.abs(rs)) / sigma ** 2
+    assert 0 < (w < w.max()).sum() < len(w), "rows on both sides of the knee"
+    np.testing.assert_allclose(H, (Js * w[:, None]).T @ Js, rtol=1e-12)
+    np.testing.assert_allclose(g, (Js * w[:, None]).T @ rs, rtol=1e-12)
+    assert np.isclose(squares, (rs ** 2).sum(), rtol=1e-12)
+
+
 def _align_frame_to_frame(seed: int, depth_noise: bool) -> float:
     """Translation error (mm) of frame 2 (depth noise 3 mm x z^2) aligned to frame 0's exact depth."""
     from splat_core.align.numba_backend import _gauss_newton_step, _grey, _Level
