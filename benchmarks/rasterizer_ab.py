@@ -14,7 +14,8 @@ machine pairs taken moments apart share its load, where separate runs do not. `-
 
 `--pixels`: the sparse-pixel rasterizer (`cpu_pixels.py`) instead, as the tracker calls it: the map
 culled to each view as the tracker culls it, one random pixel per 8 x 8 block (`tracking.pixels:
-random`), forward and backward of a random loss.
+random`), forward and backward of a random loss. The other checkout's cpu_pixels.py runs on this
+checkout's cpu.py (what it imports relatively), so the ratio is that of the sparse path's own code.
 
 Both modules compile into a temporary Numba cache (NUMBA_CACHE_DIR): the other checkout's module,
 loaded under another name, would otherwise leave cache entries its own runs cannot load.
@@ -128,7 +129,8 @@ def main() -> None:
             if not args.no_check:
                 assert all(np.array_equal(a, b) for a, b in zip(outputs["this"], outputs["before"])), \
                     "outputs differ from the other checkout's"
-    print(f"# {Path(args.load).name} · {'sparse pixels' if args.pixels else 'dense, mapping tiles'} · before: {args.before} · {machine_line()} · {args.clock} clock · "
+    what = "sparse pixels" if args.pixels else "dense, mapping tiles"
+    print(f"# {Path(args.load).name} · {what} · before: {args.before} · {machine_line()} · {args.clock} clock · "
           f"load {load:.2f} -> {os.getloadavg()[0]:.2f} · {args.views} views x {args.repeats} pairs · "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     print("| part | this (ms, median) | before (ms, median) | paired ratio this / before (median) | quartiles |")

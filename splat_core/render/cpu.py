@@ -171,9 +171,9 @@ def _bin_to_tiles(boxes, ntx, nty, tile_mask, threads):
     Gaussian index per intersection) and gauss_slots (for each Gaussian, in its own order, the
     intersections that belong to it).
 
-    In parallel over contiguous chunks of Gaussians, one per thread (`threads`): each counts its intersections
-    per tile, a chunk's place in a tile's list follows the chunks before it, and each fills its
-    places in Gaussian order, so the lists are those of a serial pass.
+    In parallel over contiguous chunks of Gaussians, one per thread (`threads`): each chunk counts
+    its intersections per tile, its place in a tile's list follows the chunks before it, and it
+    fills its places in Gaussian order, so the lists are those of a serial pass.
 
     The tile size is the compile-time TILE: a division by it compiles to a shift, where a
     run-time divisor cost a 64-bit division per box edge (the rasterizer's forward, binning

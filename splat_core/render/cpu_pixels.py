@@ -10,10 +10,11 @@ exactly its list with the dense kernel's per-pixel test (power <= 0, alpha = min
 >= 1/255, compositing stops before the Gaussian that would push transmittance below 1e-4): the
 same Gaussians in the same order as the dense render's tile list after its box test, so the results
 equal the dense render at those pixels (to rounding: the dense kernels fuse multiply-adds; tests
-check it) while the cost follows the pixels. (Until 2026-12-07 each pixel walked its whole 16 x 16 tile's list, box-testing every
-entry, and every Gaussian in view was sorted and binned to tiles: with the tracker's one pixel in
-64, the forward took 1.2-1.3x and the backward 1.7x as long, for the same results bit for bit:
-`benchmarks/rasterizer_ab.py --pixels`; docs/benchmarks.md, "Renderer".)
+check it) while the cost follows the pixels. (Until 2026-12-07 each pixel walked its whole 16 x 16
+tile's list, box-testing every entry, and every Gaussian in view was sorted and binned to tiles:
+with the tracker's one pixel in 64, the forward took 1.3-1.4x and the backward 1.7x as long, for
+the same results bit for bit: `benchmarks/rasterizer_ab.py --pixels`; docs/benchmarks.md,
+"Renderer".)
 
 Tracking on one pixel in a few per tile is what makes it cheap (SPLATONIC, HPCA 2026, tracks
 SplaTAM on one random pixel per 16 x 16 tile); the projection (torch, gradients to the pose) is
@@ -33,8 +34,9 @@ from numba import njit, prange
 
 from ..parallel import numba_lock
 from .cpu import (_C_ALPHA_MAX, _C_ALPHA_MIN, _C_HALF, _C_ONE, _C_T_MIN, _C_ZERO, _P_A, _P_B,
-                  _P_C, _P_MX, _P_MY, _P_O, _P_WIDTH, TILE, _consts, _exp, _np, _prepare_gaussians,
-                  _working_dtype, depth_order, tile_table)
+                  _P_C, _P_MX, _P_MY, _P_O, _P_WIDTH, TILE, _consts, _exp, _gather_sorted, _np,
+                  _prepare_gaussians, _working_dtype, depth_order, tile_table)
+
 
 @njit(cache=True, nogil=True)
 def _pixel_counts(px, py, width, height):
@@ -96,21 +98,6 @@ def _bin_to_pixels(pair_offsets, pair_pix, P):
     return pix_offsets, pix_gauss
 
 
-@njit(parallel=True, cache=True, nogil=True)
-def _gather_rows(pick, live, params, boxes, features, order, params_out, boxes_out, feats_out):
-    """Rows `pick` of (live, params, boxes) in that order, with their Gaussians' features."""
-    for j in prange(pick.shape[0]):
-        i = pick[j]
-        g = live[i]
-        order[j] = g
-        for q in range(params.shape[1]):
-            params_out[j, q] = params[i, q]
-        for q in range(4):
-            boxes_out[j, q] = boxes[i, q]
-        for q in range(features.shape[1]):
-            feats_out[j, q] = features[g, q]
-
-
 class _PixelBins:
     """The binning of one sparse render (what its backward needs too)."""
 
@@ -138,9 +125,11 @@ def _bin_pixels(means2d, conics, opacities, features, depths, radii, width, heig
     pick = kept[depth_order(depths.detach().cpu().numpy()[live[kept]])]   # positions in `live`, front to back
     L = pick.shape[0]
     feats = _np(features, dtype)
-    b.order, b.params = np.empty(L, np.int64), np.empty((L, _P_WIDTH), dtype)
-    b.feats, sorted_boxes = np.empty((L, feats.shape[1]), dtype), np.empty((L, 4), np.int64)
-    _gather_rows(pick, live, params, boxes, feats, b.order, b.params, sorted_boxes, b.feats)
+    b.order, b.params, sorted_boxes = np.empty(L, np.int64), np.empty((L, _P_WIDTH), dtype), np.empty((L, 4), np.int64)
+    blocks = np.empty((-(-feats.shape[1] // 4), L, 4), dtype)     # the dense path's gather: 4-channel blocks
+    _gather_sorted(pick, live, params, boxes, feats, b.order, b.params, sorted_boxes, blocks)
+    b.feats = blocks[0] if feats.shape[1] == 4 else \
+        np.ascontiguousarray(np.concatenate(list(blocks), axis=1)[:, :feats.shape[1]])
     pair_offsets = np.zeros(L + 1, dtype=np.int64)
     np.cumsum(hits[pick], out=pair_offsets[1:])
     pair_pix = np.empty(int(pair_offsets[L]), dtype=np.int64)
