@@ -79,6 +79,7 @@ def main() -> None:
     noise = np.random.default_rng(0)
     load = os.getloadavg()[0]
     if args.pixels:
+        from splat_core.pixel_selection import choose_pixels
         from splat_core.render import cpu_pixels
         modules = {"this": cpu_pixels, "before": load_before(args.before, "cpu_pixels")}
     else:
@@ -86,7 +87,6 @@ def main() -> None:
     for v in range(args.views):
         w2c = to_device(window[v % len(window)].w2c, g.means.dtype, g.means.device)
         if args.pixels:
-            from splat_core.pixel_selection import choose_pixels
             view = renderer.visible(g, intr, window[v % len(window)].w2c, margin=0.25)   # as Tracker.nearby
             H, W = intr.height, intr.width
             pixels = choose_pixels("random", np.zeros((H, W, 3), np.float32), np.ones((H, W), np.float32), 8, 1,

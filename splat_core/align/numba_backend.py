@@ -206,16 +206,13 @@ def _add_huber_system(r, J, ok, scale, floor, weight, H, g):
     """H += J^T W J and g += J^T W r over the rows with ok (r and J times scale[i]); W: Huber
     weights over a robust scale (1.4826 x the median |r|, at least floor) times weight / scale^2.
     Returns the sum of the rows' squared (scaled) residuals."""
-    n = 0
-    for i in range(r.shape[0]):
-        n += ok[i]
-    a = np.empty(n)
+    a = np.empty(r.shape[0])
     k = 0
     for i in range(r.shape[0]):
         if ok[i]:
             a[k] = abs(r[i] * scale[i])
             k += 1
-    sigma = max(1.4826 * np.median(a), floor)
+    sigma = max(1.4826 * np.median(a[:k]), floor)
     squares = 0.0
     for i in range(r.shape[0]):
         if not ok[i]:
