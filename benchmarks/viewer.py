@@ -129,6 +129,7 @@ def client_side(n: int, timeout: float) -> dict:
     import viser
 
     from app.viewer import StaticSource, build_viewer
+    from app.viewer.page_camera import place
 
     m = synthetic_map(n, 20)
     snap = snapshot_of(freeze_gaussians(m.to_numpy()), list(range(0, 100, 5)))
@@ -139,8 +140,7 @@ def client_side(n: int, timeout: float) -> dict:
             while not server.get_clients() and time.monotonic() - t_wait < 60:
                 time.sleep(0.05)
             client = next(iter(server.get_clients().values()))
-            with client.atomic():
-                client.camera.position, client.camera.look_at = (0.0, 0.0, -1.5), (0.0, 0.0, 2.5)
+            place(client, (0.0, 0.0, -1.5), (0.0, 0.0, 2.5))
             empty = np.asarray(client.get_render(120, 160, timeout=60), np.int32)
             t0 = time.monotonic()
             app = build_viewer(server, StaticSource(snap))   # the viewer starts pushing now

@@ -17,6 +17,7 @@ import numpy as np
 import viser
 
 from ..snapshot import MapSnapshot
+from .page_camera import place
 
 BEHIND_ABOVE = np.array([0.0, -0.5, -1.0])   # in the first camera's axes: back (-z) and up (-y)
 REFRAME_FRACTION = 0.05                       # reframe when the view moves this much of the map's size
@@ -133,10 +134,5 @@ class MapFraming:
                 sent = self._sent[client.client_id]
                 sent.append((position.copy(), look_at.copy()))
                 del sent[:-SENT_KEPT]
-            with client.atomic():
-                # position before look-at: viser's position setter carries the old look-at along
-                # (it keeps the orientation), so a look-at set first would be moved off the map
-                client.camera.up_direction = (0.0, -1.0, 0.0)
-                client.camera.position = tuple(position)
-                client.camera.look_at = tuple(look_at)
+            place(client, position, look_at)
         return True

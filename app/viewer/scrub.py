@@ -33,6 +33,7 @@ from ..images import colorize_depth, depth_max_of, mosaic, to_uint8
 from ..snapshot import MapSnapshot
 from .loops import LOOP_COLOR, loop_segments
 from .cameras import wxyz_position
+from .page_camera import place_c2w
 
 FADED_COLOR = (150, 150, 160)
 
@@ -210,10 +211,7 @@ class KeyframeScrubber:
             else:
                 self._shadow(page, pos, snap)
         if pos is not None and fly:
-            wxyz, position = wxyz_position(snap.keyframes[pos].c2w)
-            with page.client.atomic():
-                page.client.camera.wxyz = wxyz
-                page.client.camera.position = position
+            place_c2w(page.client, snap.keyframes[pos].c2w)
         if K:
             self._show_panel(page, K - 1 if pos is None else pos, snap)
         if self.on_change is not None:

@@ -23,6 +23,7 @@ from splat_core.errors import InputError
 
 from .download import produce_and_send
 from .novel_view import browser_camera
+from .page_camera import place_c2w
 from .cameras import wxyz_position
 
 
@@ -140,10 +141,8 @@ class CameraPathPanel:
         n = max(2, int(float(self.seconds.value) * rate_hz))
         fov = self.fov
         for c2w in self.frames(n):
-            wxyz, pos = wxyz_position(c2w)
             with client.atomic():
-                client.camera.wxyz = wxyz
-                client.camera.position = pos
+                place_c2w(client, c2w)
                 client.camera.fov = fov
             time.sleep(1.0 / rate_hz)
 

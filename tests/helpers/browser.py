@@ -28,10 +28,9 @@ def connect(browser, server):
 
 def look(client, position, look_at):
     """Set the page's camera and wait until the page reports it."""
-    with client.atomic():
-        client.camera.up_direction = (0.0, -1.0, 0.0)
-        client.camera.position = position
-        client.camera.look_at = look_at
+    from app.viewer.page_camera import place
+
+    place(client, position, look_at)
     wait_until(lambda: np.allclose(client.camera.position, position, atol=1e-3)
                and np.allclose(client.camera.look_at, look_at, atol=1e-3), 30, what=f"the page's camera at {position}")
 

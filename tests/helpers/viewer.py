@@ -15,6 +15,28 @@ from splat_core.keyframes import Keyframe
 from splat_core.slam import FrameResult, MapVersion
 
 INTR = Intrinsics(60.0, 60.0, 39.5, 29.5, 80, 60)
+
+
+class MessageLog:
+    """A fake client's `_websock_connection`, as app/viewer/page_camera.py uses it: the messages queued
+    for the page, and the camera pose they place it at."""
+
+    def __init__(self):
+        self.messages = []
+
+    def queue_message(self, message):
+        self.messages.append(message)
+
+    def placed(self) -> dict:
+        """{"position", "look_at", "up"} of the last camera messages (None where none was sent)."""
+        last = {"SetCameraPositionMessage": ("position", "position"), "SetCameraLookAtMessage": ("look_at", "look_at"),
+                "SetCameraUpDirectionMessage": ("up", "position")}
+        out = dict.fromkeys(("position", "look_at", "up"))
+        for m in self.messages:
+            if type(m).__name__ in last:
+                key, field = last[type(m).__name__]
+                out[key] = np.asarray(getattr(m, field), np.float64)
+        return out
 FRAME_COLORS = [(1.0, 0.1, 0.1), (0.1, 0.3, 1.0), (0.1, 0.9, 0.2), (0.9, 0.9, 0.1), (0.8, 0.2, 0.9)]
 
 

@@ -17,7 +17,7 @@ from splat_core.errors import InputError
 from splat_core.io.ply import read_ply
 from splat_core.io.trajectory import read_tum_trajectory
 
-from helpers.viewer import FakePipeline, apply_snapshot, blob_map, wait_until
+from helpers.viewer import FakePipeline, MessageLog, apply_snapshot, blob_map, wait_until
 from helpers.runs import make_run, run_cli
 
 
@@ -109,7 +109,9 @@ class FakeClient:
         from viser import ViserServer  # noqa: F401
         self.client_id = client_id
         self.hidden: set = set()
-        self.camera = types.SimpleNamespace(wxyz=None, position=None)
+        self.camera = types.SimpleNamespace(position=np.zeros(3), look_at=np.array([0.0, 0.0, 1.0]),
+                                            up_direction=np.array([0.0, -1.0, 0.0]))
+        self._websock_connection = MessageLog()
         self.gui = server.gui
         outer = self
 
@@ -151,6 +153,10 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert scrub_a.slider.max == 3 and scrub_a.slider.value == 3 and scrub_a.follow.value
         app.scrubber.go_to(0, 0)
         assert scrub_a.slider.value == 1 and not scrub_a.follow.value
+        first = app.scrubber.snapshot.keyframes[0].c2w                 # page a's camera flies there
+        placed = page_a._websock_connection.placed()
+        assert np.allclose(placed["position"], first[:3, 3]) and placed["look_at"] @ first[:3, 2] > 0
+        assert page_b._websock_connection.placed()["position"] is None
         assert {"/map/kf_000002", "/map/kf_000004", "/map/tail", "/keyframes"} <= set(page_a.hidden)
         assert "/map/kf_000000" not in page_a.hidden and not page_b.hidden
         assert app.scrubber.birth_limit(0) == 0 and app.scrubber.birth_limit(1) is None
