@@ -6,9 +6,9 @@ sends a look-at of its own (the old one carried along). The server's copy of the
 by every camera report from the page, on viser's event-loop thread, so a report that arrives
 between two setters (the page reporting its start-up pose, or its last move) can make the second
 one skip: the page then ends at the new position looking along the carried look-at, not the one
-asked for. We saw it once in 40 tries with a busy CPU (tests/viewer/test_page_camera_browser.py
-repeats it), and once in CI: a page left looking the wrong way, and
-MapFraming then taking that pose for the visitor's own.
+asked for: once in 40 placements on a page just connected, with a busy loop beside it, and once in
+CI (a test's page never reached the camera it was given). In the viewer that is a page left
+looking the wrong way, and MapFraming then taking that pose for the visitor's own.
 
 So for the viser versions page_shim.py knows, the three messages (up, position, look-at) are
 queued as one atomic group, whatever the server last heard; the page's next report updates the
