@@ -32,7 +32,11 @@ script lets the view draw at most one animation frame every REDRAW_GAP_MS, excep
 person is using the page (pointer pressed or dragged, wheel, keys, touch: every frame then).
 A frame asked for within the gap is not drawn (the canvas keeps the last one); viser's own
 heartbeat asks for a frame every second, so the newest scene is drawn at most a second after the
-gap ends. How: the same devtools hook tells about every WebGLRenderer, whose `render` is wrapped;
+gap ends. The gap was 2.5 s until 2026-12-07; on the Intel 2-core machine a draw of a 100k-splat map
+cost Chromium about 2 core-seconds, and 5 s halved the draws during a SLAM run and the browser's
+CPU (0.44-0.47 -> 0.26-0.27 cores; SLAM in the viewer 0.65-0.67x -> 0.78-0.84x of headless,
+docs/benchmarks.md, Viewer).
+How: the same devtools hook tells about every WebGLRenderer, whose `render` is wrapped;
 the first draw call of an animation frame decides for all its calls, and only draws to the
 canvas are held: a draw with a camera never used before (viser's get_render capture makes a new
 one each time) or to an off-screen target (environment maps) is never held. `?redraw=full` in the page's URL turns it off,
@@ -57,7 +61,7 @@ log = logging.getLogger(__name__)
 
 SHIM_VISER_VERSIONS = ("1.1.1",)
 MARKER = "splatam-viewer: splat bounds"
-REDRAW_GAP_MS = 2500       # a software-WebGL page draws its view at most this often...
+REDRAW_GAP_MS = 5000       # a software-WebGL page draws its view at most this often...
 REDRAW_INPUT_MS = 1500     # ...unless the page had input this recently
 
 SPLAT_BOUNDS_JS = """(function () {
