@@ -152,7 +152,7 @@ def apply_snapshot(app, source, snap) -> None:
     """Hand the viewer `snap` (through a source whose `.snap` it reads) and wait until it is applied."""
     source.snap = snap
     app.wake()
-    wait_until(lambda: app.applied is not None and app.applied.frame_index == snap.frame_index, 10,
+    wait_until(lambda: app.applied is not None and app.applied.frame_index == snap.frame_index, 60,
                what=f"snapshot {snap.version}")
 
 

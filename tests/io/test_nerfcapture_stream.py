@@ -39,7 +39,7 @@ dds = pytest.mark.skipif(importlib.util.find_spec("cyclonedds") is None or not L
 TINY = "base: cpu\nresolution: [64, 48]\n"
 
 
-def wait_until(predicate, timeout=10.0):
+def wait_until(predicate, timeout=60.0):
     deadline = time.monotonic() + timeout
     while not predicate():
         assert time.monotonic() < deadline, "timed out"
@@ -66,7 +66,7 @@ def test_live_frames_equal_the_recorded_capture_read_offline(tmp_path):
     live = []
     for fields in fields_list:
         receiver.put(fields)
-        live.append(stream.next_frame(timeout=10))
+        live.append(stream.next_frame(timeout=60))
     stream.close()
     assert receiver.closed and stream.stats()["dropped"] == 0
     cap = assert_reads_back(tmp_path / "cap", fields_list, poses)
@@ -89,10 +89,10 @@ def test_slam_gets_the_newest_frame_and_the_skipped_ones_are_counted(tmp_path):
     stream = NeRFCaptureStream(tmp_path / "cap", receiver=receiver, idle_timeout=None)
     wait_until(lambda: len(stream) == 3)
     assert len(NeRFCaptureCapture(tmp_path / "cap")) == 3    # readable while the stream goes on
-    assert stream.next_frame(timeout=5).index == 2 and stream.dropped == 2
+    assert stream.next_frame(timeout=60).index == 2 and stream.dropped == 2
     assert stream.next_frame(timeout=0.3) is None          # nothing new yet; the stream goes on
     receiver.put(fields_list[3])
-    assert stream.next_frame(timeout=5).index == 3
+    assert stream.next_frame(timeout=60).index == 3
     receiver.put(fields_list[4])
     wait_until(lambda: len(stream) == 5)
     stream.stop()                                          # Ctrl-C: the frame waiting is not handed out
@@ -107,13 +107,13 @@ def test_bad_frames_are_rejected_and_named_when_nothing_usable_arrives(tmp_path)
     fields_list, _ = pub.messages(1)
     no_depth = dict(fields_list[0], has_depth=False, depth_image=[])
     short = dict(fields_list[0], id=9, image=fields_list[0]["image"][:-3])
-    stream = NeRFCaptureStream(tmp_path / "cap", receiver=pub.FakeReceiver([no_depth, short]), idle_timeout=0.5)
+    stream = NeRFCaptureStream(tmp_path / "cap", receiver=pub.FakeReceiver([no_depth, short]), idle_timeout=3.0)
     with pytest.raises(InputError) as e:
         stream.intrinsics
     message = str(e.value)
     assert "\n" not in message and "2 frames rejected" in message and "expected 128x96 RGB8" in message
     assert "same Wi-Fi" in message and "Online mode" in message and "CYCLONEDDS_URI" in message
-    assert stream.end_reason == "no frame for 0.5 s" and not (tmp_path / "cap").exists()
+    assert stream.end_reason == "no frame for 3 s" and not (tmp_path / "cap").exists()
 
 
 def test_recording_refuses_a_folder_that_holds_files(tmp_path):

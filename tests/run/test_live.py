@@ -90,6 +90,7 @@ def test_live_engine_tracks_while_other_threads_render_its_map():
         try:
             while not stop.is_set():
                 if live.engine.slam.latest_version() is None:
+                    stop.wait(0.001)        # no map yet: do not spin, the engine needs the cores
                     continue
                 version = live.map_version()
                 seen.setdefault(version.number, (version, version.gaussians.means.clone()))

@@ -55,6 +55,7 @@ class ViewerProcess:
             self.proc.kill()
 
 
+@pytest.mark.timeout(1200)      # a cold compile on a busy 2-core machine: its waits add up past the default
 def test_page_shows_the_compile_then_the_map(browser, tmp_path):
     viewer = ViewerProcess(tmp_path, "--max-frames", "3")
     try:
@@ -62,7 +63,7 @@ def test_page_shows_the_compile_then_the_map(browser, tmp_path):
         assert not viewer.said("compiled")
         assert urllib.request.urlopen(url, timeout=30).status == 200    # served before the kernels compile
         page = browser.new_page(viewport={"width": 1000, "height": 700})
-        page.goto(url)
+        page.goto(url, timeout=120_000)
         page.wait_for_function("() => document.body.innerText.includes('Compiling the CPU kernels')",
                                timeout=120_000)
         assert not viewer.said("compiled"), viewer.lines       # the page showed it while it compiled

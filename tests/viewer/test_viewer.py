@@ -34,7 +34,7 @@ def test_worker_publishes_immutable_snapshots(tmp_path):
     pipe = FakePipeline(total=5, per_frame=20, out_dir=tmp_path)
     w = SlamWorker(pipe, live_render=False)
     w.start()
-    snap = w.wait_for(lambda s: s is not None and s.state == "finished", timeout=20)
+    snap = w.wait_for(lambda s: s is not None and s.state == "finished", timeout=60)
     assert snap is not None, w.error
     assert snap.processed == 5 and snap.total_frames == 5
     assert snap.num_gaussians == 100
@@ -55,23 +55,23 @@ def test_worker_pause_step_resume_stop():
     pipe = FakePipeline(total=200, per_frame=5, frame_seconds=0.02)
     w = SlamWorker(pipe, live_render=False, start_paused=True)
     w.start()
-    assert w.wait_for(lambda s: s.state == "paused", 5)
+    assert w.wait_for(lambda s: s.state == "paused", 60)
     time.sleep(0.2)
     assert w.latest().processed == 0
     w.step_once()
-    assert w.wait_for(lambda s: s.processed == 1 and s.state == "paused", 5)
+    assert w.wait_for(lambda s: s.processed == 1 and s.state == "paused", 60)
     w.step_once()
-    assert w.wait_for(lambda s: s.processed == 2, 5)
+    assert w.wait_for(lambda s: s.processed == 2, 60)
     time.sleep(0.2)
     assert w.latest().processed == 2
     w.resume()
-    assert w.wait_for(lambda s: s.processed >= 6, 5)
+    assert w.wait_for(lambda s: s.processed >= 6, 60)
     w.pause()
-    n = w.wait_for(lambda s: s.state == "paused", 5).processed
+    n = w.wait_for(lambda s: s.state == "paused", 60).processed
     time.sleep(0.2)
     assert w.latest().processed == n
     w.resume()
-    assert w.wait_for(lambda s: s.processed > n, 5)
+    assert w.wait_for(lambda s: s.processed > n, 60)
     w.stop(join_timeout=5)
     assert not w.is_alive() and w.latest().state == "stopped" and pipe.finished
 
@@ -84,7 +84,7 @@ def test_worker_survives_a_failing_pipeline():
     pipe.step = boom
     w = SlamWorker(pipe, live_render=False)
     w.start()
-    snap = w.wait_for(lambda s: s.state == "error", 5)
+    snap = w.wait_for(lambda s: s.state == "error", 60)
     assert "tracking diverged" in snap.message
 
 
@@ -138,8 +138,8 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
     app = build_viewer(server, w, export_dir=tmp_path, render_backend="reference", update_hz=20)
     try:
         w.start()
-        w.wait_for(lambda s: s.state == "finished", 10)
-        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 10)
+        w.wait_for(lambda s: s.state == "finished", 60)
+        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 60)
         names = sorted(app.map_layer.node_names)
         assert names == ["/map/kf_000000", "/map/kf_000002", "/map/kf_000004", "/map/tail"]
         assert app.map_layer.consolidations >= 1               # the end of the run consolidates

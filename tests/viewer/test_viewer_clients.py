@@ -36,7 +36,7 @@ def test_a_stalled_client_holds_a_bounded_buffer(server):
     sock = stalled_client(server.get_port())
     ws = server._websock_server
     try:
-        wait_until(lambda: len(ws._live_connections) == 1, 10, what="the stalled connection")
+        wait_until(lambda: len(ws._live_connections) == 1, 60, what="the stalled connection")
         cid = next(iter(ws._live_connections))
         layer = MapLayer(server, consolidate_every=1)
         kfs = (KeyframeView(0, np.eye(4), np.zeros((4, 4, 3), np.uint8)),)

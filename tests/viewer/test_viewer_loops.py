@@ -143,11 +143,11 @@ def test_worker_snapshots_carry_loops_and_corrected_keyframes(server):
     app = build_viewer(server, worker)
     try:
         worker.start()     # the keyframe at frame 2 is published at frame 2, moved by the loop at frame 4
-        snap = worker.wait_for(lambda s: s is not None and s.state == "finished", 20)
+        snap = worker.wait_for(lambda s: s is not None and s.state == "finished", 60)
         assert len(snap.loops) == 1 and snap.loops[0].frames == (0, 4)
         assert np.isclose(snap.keyframes[1].c2w[1, 3], 0.05) and np.isclose(snap.keyframes[2].c2w[1, 3], 0.05)
         assert np.array_equal(snap.keyframes[1].thumbnail, worker._keyframe_views[2][1].thumbnail)
-        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 20, what="run end")
+        wait_until(lambda: app.applied is not None and app.applied.state == "finished", 60, what="run end")
         assert np.allclose(app.camera_layer._frustums[2].position, [0.2, 0.05, 0])
         assert np.allclose(app.loop_layer.segments, [[[0, 0, 0], [0.4, 0.05, 0]]])
         assert "loop closed: keyframe 0 <-> 2" in app.panels.status.content

@@ -54,7 +54,7 @@ def test_browsed_run_with_a_loop_shows_the_loop(browser, server, tmp_path):
         hidden = client.scene.add_frame("/keyframes/loops", show_axes=False, visible=False)
         poll_render(client, lambda img: cyan(img) < 5, 60, "no loop edge")      # the colour was the edge's
         hidden.remove()
-        scrub = wait_until(lambda: app.scrubber.pages.get(client.client_id), 10, what="the page's scrubber")
+        scrub = wait_until(lambda: app.scrubber.pages.get(client.client_id), 60, what="the page's scrubber")
         app.scrubber.go_to(client.client_id, 1, fly=False)                    # keyframe at frame 1: before the loop
         assert "/keyframes" in scrub.shadows and "/scrub/loops" not in scrub.shadows
         app.scrubber.go_to(client.client_id, 2, fly=False)                    # frame 2 closed it

@@ -53,10 +53,13 @@ def test_mesh_layer_and_mesh_export_in_the_page(browser, server, run_dir, tmp_pa
         splats = render(client)
         page.get_by_text("Mesh", exact=True).first.click()                 # open the folder
         page.get_by_role("button", name="Build mesh").click()
-        wait_until(lambda: layer.handle is not None, 120, interval=0.25, what="mesh built and sent")
+        # the build thread sends the mesh, then shows it and writes its summary: wait for all of it
+        wait_until(lambda: layer.handle is not None and "faces" in layer.info.content, 120, interval=0.25,
+                   what="mesh built and sent")
         assert server.scene.get_handle_by_name("/mesh") is layer.handle
-        assert layer.handle.visible and not layer.map_root.visible            # the mesh instead of the splats
-        assert len(layer.mesh.faces) > 500 and "faces" in layer.info.content
+        wait_until(lambda: layer.handle.visible and not layer.map_root.visible, 30,
+                   what="the mesh shown instead of the splats")
+        assert len(layer.mesh.faces) > 500
         shown = {}
 
         def drawn(reference):
@@ -65,8 +68,8 @@ def test_mesh_layer_and_mesh_export_in_the_page(browser, server, run_dir, tmp_pa
         wait_until(lambda: drawn(splats), 60, interval=0.5, what="the page draws the mesh")
         mesh_img = shown["img"]
         page.get_by_text("Show mesh instead of splats").first.click()        # back to the splats
-        wait_until(lambda: not layer.show.value, 30, what="toggle")
-        assert not layer.handle.visible and layer.map_root.visible
+        wait_until(lambda: not layer.show.value and not layer.handle.visible and layer.map_root.visible, 30,
+                   what="the toggle applied: the splats instead of the mesh")
         wait_until(lambda: drawn(mesh_img), 60, interval=0.5, what="splats again")
         # the export panel's mesh entry: the same mesh as a .ply download
         app.export_panel.format.value = LABELS["mesh"]
