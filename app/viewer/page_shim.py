@@ -34,8 +34,8 @@ A frame asked for within the gap is not drawn (the canvas keeps the last one); v
 heartbeat asks for a frame every second, so the newest scene is drawn at most a second after the
 gap ends. The gap was 2.5 s until 2026-12-07; on the Intel 2-core machine a draw of a 100k-splat map
 cost Chromium about 2 core-seconds, and 5 s halved the draws during a SLAM run and the browser's
-CPU (0.44-0.47 -> 0.26-0.27 cores; SLAM in the viewer 0.65-0.67x -> 0.78-0.84x of headless,
-docs/benchmarks.md, Viewer).
+CPU (0.44-0.47 -> 0.26-0.27 cores; SLAM in the viewer 0.75x -> 0.79x of headless, pooled over
+nine runs each: less than the runs' spread; docs/benchmarks.md, Viewer).
 How: the same devtools hook tells about every WebGLRenderer, whose `render` is wrapped;
 the first draw call of an animation frame decides for all its calls, and only draws to the
 canvas are held: a draw with a camera never used before (viser's get_render capture makes a new
