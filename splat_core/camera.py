@@ -113,10 +113,15 @@ def pixel_grid(width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
 
 
-def backproject(depth: np.ndarray, intr: Intrinsics) -> np.ndarray:
-    """HxW depth (metres) -> HxWx3 camera-space points at the pixel centres (see module doc)."""
-    u, v = pixel_grid(intr.width, intr.height)
-    z = depth.astype(np.float64)
+def backproject(depth: np.ndarray, intr: Intrinsics, mask: np.ndarray | None = None) -> np.ndarray:
+    """HxW depth (metres) -> HxWx3 camera-space points at the pixel centres (see module doc); with an
+    HxW bool `mask`, N x 3 at its pixels only, in row-major order (what [mask] of the HxWx3 gives)."""
+    if mask is None:
+        u, v = pixel_grid(intr.width, intr.height)
+        z = depth.astype(np.float64)
+    else:
+        v, u = np.nonzero(mask)
+        z = depth[v, u].astype(np.float64)
     return np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=-1)
 
 

@@ -60,7 +60,7 @@ def gaussians_from_pixels(color: np.ndarray, depth: np.ndarray, mask: np.ndarray
                           w2c: np.ndarray, frame_index: int, config: DensifyConfig, isotropic: bool,
                           device="cpu", dtype=torch.float32) -> GaussianMap:
     """Back-project the masked pixels to new Gaussians in the world frame."""
-    pts_cam = backproject(depth, intr)[mask]
+    pts_cam = backproject(depth, intr, mask)
     c2w = invert_pose(w2c)
     pts_world = pts_cam @ c2w[:3, :3].T + c2w[:3, 3]
     radii = depth[mask].astype(np.float64) / intr.mean_focal

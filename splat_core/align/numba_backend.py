@@ -134,10 +134,8 @@ class _Level:
             grid = np.zeros_like(live_valid)
             grid[::live_stride, ::live_stride] = True
             live_valid &= grid
-        v, u = np.nonzero(live_valid)        # camera.backproject's arithmetic, at the valid pixels only
-        z = live_depth[v, u].astype(np.float64)
-        self.live_points = np.stack([(u - intr.cx) / intr.fx * z, (v - intr.cy) / intr.fy * z, z], axis=1)
-        self.live_grey = np.ascontiguousarray(live_grey[v, u])
+        self.live_points = backproject(live_depth, intr, live_valid)
+        self.live_grey = np.ascontiguousarray(live_grey[live_valid])
         # tracking.align.depth_noise: residuals weighed by the sensor's noise at 1 m over its noise here
         self.noise_scale = _noise(1.0) / _noise(self.live_points[:, 2])
         self.ones = np.ones(len(self.live_points))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from app.viewer.page_camera import place
+
 from .viewer import wait_until
 
 
@@ -28,8 +30,6 @@ def connect(browser, server):
 
 def look(client, position, look_at):
     """Set the page's camera and wait until the page reports it."""
-    from app.viewer.page_camera import place
-
     place(client, position, look_at)
     wait_until(lambda: np.allclose(client.camera.position, position, atol=1e-3)
                and np.allclose(client.camera.look_at, look_at, atol=1e-3), 30, what=f"the page's camera at {position}")
