@@ -6,11 +6,11 @@
     preview.flush()                           # render what is offered now and wait for it (pause, end)
     preview.close()
 
-Why a thread: the render (the whole map at up to 320 pixels wide, on the CPU) took the SLAM
-thread about as long as tracking a frame with the `live` preset, so the viewer ran SLAM at about
-a third of its headless rate (docs/benchmarks.md, Viewer). Here the SLAM thread only hands over
-the frame; the preview renders the newest frame offered when it is due and drops the ones
-offered meanwhile, so image and render still belong to the same frame.
+Why a thread: the render (the whole map at up to 320 pixels wide then; the panel's 200 now, on
+the CPU) took the SLAM thread about as long as tracking a frame with the `live` preset, so the
+viewer ran SLAM at about a third of its headless rate (docs/benchmarks.md, Viewer). Here the SLAM
+thread only hands over the frame; the preview renders the newest frame offered when it is due and
+drops the ones offered meanwhile, so image and render still belong to the same frame.
 
 When due: at most every `interval_s`, and after a render that took r seconds not before r / duty
 seconds have passed since it started, so the preview takes at most `duty` of one core however

@@ -29,10 +29,14 @@ STATES = ("starting", "running", "paused", "finished", "stopped", "error", "brow
 
 # When the browser gets the growing map while SLAM runs (app/viewer/scene.py MapLayer.policy).
 MAP_UPDATE_POLICIES = ("keyframes", "continuous", "off")
-# How the browser draws the map while SLAM runs (MapLayer.running_style); always splats once it stops.
-RUNNING_STYLES = ("splats", "points")
+# How the browser draws the map while SLAM runs (MapLayer.running_style; auto: points while a page that
+# draws WebGL in software is connected, splats otherwise); always splats once it stops.
+RUNNING_STYLES = ("auto", "splats", "points")
 
 HISTORY_KEYS = ("frame", "tracking_loss", "ate_cm", "seconds", "psnr", "num_gaussians")
+# The live panel's tiles are this many pixels wide (app/viewer/panels.py live_mosaic); the worker
+# renders the map for it no wider (app/worker.py): pixels past it are drawn and then thrown away.
+LIVE_TILE_WIDTH = 200
 
 
 def frozen(a):

@@ -20,8 +20,8 @@ import numpy as np
 from splat_core.metrics import psnr
 
 from .live_preview import LivePreview
-from .snapshot import (HISTORY_KEYS, KeyframeView, LiveView, MapSnapshot, VersionArrays, empty_gaussians,
-                       freeze_gaussians, frozen, make_thumbnail)
+from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, VersionArrays,
+                       empty_gaussians, freeze_gaussians, frozen, make_thumbnail)
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +32,8 @@ class SlamWorker(threading.Thread):
     map_interval_s: the Gaussian arrays are copied at most this often (and on every keyframe,
     pause and at the end); the other snapshot fields are refreshed after every frame.
     live_render: render the map at the tracked pose (colour, depth, silhouette) for the panel,
-    at most `live_max_width` pixels wide, in a LivePreview thread: at most every `live_interval_s`
+    at most `live_max_width` pixels wide (the panel's tile width: the PSNR beside it is of that
+    size too), in a LivePreview thread: at most every `live_interval_s`
     and at most `live_duty` of one core (the page shows about two updates a second; a render per
     frame, or one in the SLAM thread, would only slow SLAM down). Between those the panel keeps
     the last rendered frame, so image and render always belong together; a pause and the run's
@@ -43,7 +44,7 @@ class SlamWorker(threading.Thread):
     """
 
     def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
-                 render_backend: str = "auto", live_max_width: int = 320,
+                 render_backend: str = "auto", live_max_width: int = LIVE_TILE_WIDTH,
                  map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0,
                  live_interval_s: float = 0.4, live_duty: float = 0.25, prepare=None):
         super().__init__(name="slam-worker", daemon=True)

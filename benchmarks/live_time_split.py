@@ -11,6 +11,7 @@ Seconds are totals over the run; `mapper` is metrics.json live.mapper_seconds (l
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -34,12 +35,20 @@ def split(run: Path) -> dict:
                 median_rest=float(np.median((wall - track - wait)[1:-1])))
 
 
-def main() -> None:
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
+    p.add_argument("runs", nargs="+", type=Path, help="run folders (each with its metrics.json)")
+    args = p.parse_args()
+    missing = [str(run) for run in args.runs if not (run / "metrics.json").is_file()]
+    if missing:
+        print(f"live_time_split: no metrics.json in {', '.join(missing)} (expected run folders)", file=sys.stderr)
+        return 2
     print("| run | frames | total s | mean s/frame | frame 0 (+ frame 1's wait) | waits | last frame (wait + drain) | "
           "tracking | rest | mapper busy | median frame: wall / tracking / rest |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
-    for arg in sys.argv[1:]:
-        r = split(Path(arg))
+    for run in args.runs:
+        r = split(run)
         mapper = "–" if r["mapper"] is None else f"{r['mapper']:.1f}"
         print(f"| {r['run']} | {r['frames']} | {r['total']:.1f} | {r['mean']:.2f} | {r['first']:.1f} | {r['waits']:.1f} | "
               f"{r['last']:.1f} | {r['tracking']:.1f} | {r['rest']:.1f} | {mapper} | "
@@ -47,4 +56,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -2,8 +2,9 @@
 
     python benchmarks/viewer.py [--json] [--sizes 10000,100000,500000] [--client-sizes 10000,100000]
     python benchmarks/viewer.py --slam-frames 30 [--engine live] [--config cpu] [--map-updates keyframes|continuous|off]
-                                [--browser-splats N] [--draw-while-running splats,points] --sizes '' --client-sizes ''
+                                [--browser-splats N] [--draw-while-running splats,points] [--layers] --sizes '' --client-sizes ''
     python benchmarks/viewer.py --sizes '' --client-sizes '' --idle-sizes 5000,100000 --idle-styles splats,points [--idle-pages viewer,viser]
+                                [--idle-viewports 800x600,400x300] [--idle-redraw full]
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
 viewer with a browser connected (SlamWorker + build_viewer on the server `splatam-viewer` starts,
@@ -11,7 +12,9 @@ its page scripts included, + headless Chromium on the page, once for each --draw
 s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
 Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer). --before DIR: the same
 measurement of another checkout's app and engine (a child process importing from DIR), each
-repeat right after this checkout's, as `slam_rate_before`.
+repeat right after this checkout's, as `slam_rate_before`. --layers: also SLAM's rate in the
+viewer's layers one by one (the SLAM worker without and with the live panel's render, the viewer
+with no browser), where the viewer's cost goes.
 
 Server side (no browser): snapshot build (numpy copies of a GaussianMap), the first push of a
 map of N Gaussians split into keyframe chunks, a consolidation (set_gaussians on every chunk),
@@ -42,7 +45,7 @@ CODE = os.environ.get("SPLATAM_CODE") or str(Path(__file__).resolve().parent.par
 sys.path.insert(0, CODE)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from app.snapshot import MAP_UPDATE_POLICIES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
+from app.snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, KeyframeView, MapSnapshot, freeze_gaussians  # noqa: E402
 from app.viewer.scene import MapLayer  # noqa: E402
 from splat_core.gaussians import GaussianMap  # noqa: E402
 
@@ -107,8 +110,9 @@ def server_side(n: int) -> dict:
 
 
 @contextlib.contextmanager
-def chromium_page(server, init_script: str | None = None, viewport=(800, 600)):
-    """Headless Chromium (software WebGL, the browser tests' flags) on the server's page, connected."""
+def chromium_page(server, init_script: str | None = None, viewport=(800, 600), query: str = ""):
+    """Headless Chromium (software WebGL, the browser tests' flags) on the server's page (`query`:
+    the URL's ?... part), connected."""
     from playwright.sync_api import sync_playwright
 
     pw = sync_playwright().start()
@@ -117,7 +121,7 @@ def chromium_page(server, init_script: str | None = None, viewport=(800, 600)):
         page = browser.new_page(viewport={"width": viewport[0], "height": viewport[1]})
         if init_script:
             page.add_init_script(init_script)
-        page.goto(f"http://127.0.0.1:{server.get_port()}/")
+        page.goto(f"http://127.0.0.1:{server.get_port()}/{query}")
         page.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
         yield page
     finally:
@@ -172,10 +176,14 @@ def browser_cpu_seconds() -> float:
     return ticks / os.sysconf("SC_CLK_TCK") if ticks else 0.0
 
 
-def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: str = "viewer") -> dict:
+def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: str = "viewer",
+                 viewport: tuple = (800, 600), redraw: str | None = None) -> dict:
     """Chromium's CPU and frame rate on a page showing a static map of n Gaussians drawn as `style`
     (the viewer's splats or points), nothing changing; `served`: "viewer" (the page as
-    splatam-viewer serves it, app/viewer/page_shim.py's scripts included) or "viser" (viser's own)."""
+    splatam-viewer serves it, app/viewer/page_shim.py's scripts included) or "viser" (viser's own);
+    `viewport`: the page's size in CSS pixels; `redraw`: the page's ?redraw= (page_shim.py: "full"
+    draws every animation frame). cpu_seconds_per_draw: Chromium's CPU per view drawn (the frames
+    when every frame draws)."""
     import viser
 
     from app.commands.viewer import start_server
@@ -190,7 +198,7 @@ def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: s
     count_frames = """(() => { window.__frames = 0; const raf = window.requestAnimationFrame.bind(window);
         window.requestAnimationFrame = (cb) => raf((t) => { window.__frames++; cb(t); }); })();"""
     try:
-        with chromium_page(server, count_frames) as page:
+        with chromium_page(server, count_frames, viewport, "?redraw=" + redraw if redraw else "") as page:
             time.sleep(15)                                    # the splats arrive, sort and fade in
             drawn = "(window.__splatamRedraw || {}).drawn"           # frames the view drew (page_shim.py)
             cpu0, frames0, t0 = browser_cpu_seconds(), page.evaluate("window.__frames"), time.monotonic()
@@ -198,17 +206,30 @@ def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: s
             time.sleep(seconds)
             dt = time.monotonic() - t0
             drawn1 = page.evaluate(drawn)
-            return dict(gaussians=n, style=style, page=served, browser_cpu_cores=round((browser_cpu_seconds() - cpu0) / dt, 3),
-                        frames_per_second=round((page.evaluate("window.__frames") - frames0) / dt, 2),
-                        drawn_per_second=None if drawn0 is None else round((drawn1 - drawn0) / dt, 2))
+            cpu = browser_cpu_seconds() - cpu0
+            frames = page.evaluate("window.__frames") - frames0
+            draws = frames if redraw == "full" or drawn0 is None else drawn1 - drawn0
+            return dict(gaussians=n, style=style, page=served, viewport=list(viewport), redraw=redraw,
+                        browser_cpu_cores=round(cpu / dt, 3), frames_per_second=round(frames / dt, 2),
+                        drawn_per_second=None if drawn0 is None or redraw == "full" else round((drawn1 - drawn0) / dt, 2),
+                        cpu_seconds_per_draw=round(cpu / draws, 3) if draws else None)
     finally:
         server.stop()
 
 
+def style_option(style: str) -> dict:
+    """build_viewer's draw_while_running, or nothing (its default) where the checkout measured does
+    not know the style (--before an older checkout: "auto" is newer)."""
+    return dict(draw_while_running=style) if style in RUNNING_STYLES else {}
+
+
 def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes",
-              browser_splats: int | None = None, styles: tuple = ("splats",)) -> dict:
+              browser_splats: int | None = None, styles: tuple = ("splats",), layers: bool = False) -> dict:
     """Median s/frame of SLAM headless and inside the viewer with a browser watching, for each
-    way of drawing the map while SLAM runs (`styles`); each repeat runs headless, then each style."""
+    way of drawing the map while SLAM runs (`styles`); each repeat runs headless, then each style.
+    `layers`: each repeat also runs SLAM in the viewer's layers one by one, where its cost goes:
+    the SLAM worker alone without and with the live panel's render, and the viewer (server,
+    worker, live panel) with no browser."""
     import statistics
 
     from app.commands.viewer import start_server
@@ -223,6 +244,25 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
+    def layer(browserless_viewer: bool, live_render: bool = True):
+        pipe = pipeline()
+        worker = SlamWorker(pipe, live_render=live_render)
+        if not browserless_viewer:
+            worker.start()
+            worker.join()
+            return median(pipe.records)
+        server = start_server("127.0.0.1", 0)
+        try:
+            app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
+                               **style_option(styles[0]))
+            worker.start()
+            worker.join()
+            app.close()
+        finally:
+            server.stop()
+        return median(pipe.records)
+
+    layer_runs = {"worker, no live panel": [], "worker and live panel": [], "viewer, no browser": []}
     headless = []
     viewer = {style: [] for style in styles}
     browser_cpu = {style: [] for style in styles}
@@ -233,13 +273,17 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
             pass
         pipe.finish()
         headless.append(median(pipe.records))
+        if layers:
+            layer_runs["worker, no live panel"].append(layer(False, live_render=False))
+            layer_runs["worker and live panel"].append(layer(False))
+            layer_runs["viewer, no browser"].append(layer(True))
         for style in styles:
             pipe = pipeline()
             server = start_server("127.0.0.1", 0)      # as splatam-viewer serves its page
             try:
                 worker = SlamWorker(pipe, start_paused=True)
                 app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
-                                   draw_while_running=style)
+                                   **style_option(style))
                 with chromium_page(server) as page:
                     cpu0, t0 = browser_cpu_seconds(), time.monotonic()
                     worker.start()
@@ -254,13 +298,16 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     h = statistics.median(headless)
     return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
                 headless_s_per_frame=round(h, 3), headless_runs=headless,
-                viewer=[dict(draw_while_running=style,
+                viewer=[dict(draw_while_running=style if style in RUNNING_STYLES else f"{style}: unknown, the default",
                              viewer_s_per_frame=round(statistics.median(viewer[style]), 3),
                              viewer_fps_over_headless_fps=round(h / statistics.median(viewer[style]), 3),
                              browser_cpu_cores=round(statistics.median(browser_cpu[style]), 3),
                              page_redraw=redraw[style],
                              runs=dict(viewer=viewer[style], browser_cpu_cores=browser_cpu[style]))
-                        for style in styles])
+                        for style in styles],
+                layers={name: dict(s_per_frame=round(statistics.median(runs), 3),
+                                   fps_over_headless_fps=round(h / statistics.median(runs), 3), runs=runs)
+                        for name, runs in layer_runs.items() if runs})
 
 
 def merged(rates: list[dict]) -> dict:
@@ -280,7 +327,12 @@ def merged(rates: list[dict]) -> dict:
                           browser_cpu_cores=round(statistics.median(cpu), 3),
                           page_redraw=[r["viewer"][k].get("page_redraw") for r in rates],
                           runs=dict(viewer=runs, browser_cpu_cores=cpu)))
-    first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views)
+    layers = {}
+    for name in first.get("layers", {}):
+        runs = [x for r in rates for x in r["layers"][name]["runs"]]
+        layers[name] = dict(s_per_frame=round(statistics.median(runs), 3),
+                            fps_over_headless_fps=round(h / statistics.median(runs), 3), runs=runs)
+    first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views, layers=layers)
     return first
 
 
@@ -316,6 +368,8 @@ def main() -> int:
                    help="also Chromium's CPU on a page showing a static map of these sizes, nothing changing")
     p.add_argument("--idle-styles", default="splats", help="... drawn as splats and/or points (comma-separated)")
     p.add_argument("--idle-pages", default="viewer", help="... on the viewer's page and/or viser's own (viewer,viser)")
+    p.add_argument("--idle-viewports", default="800x600", help="... at these page sizes (CSS pixels, comma-separated)")
+    p.add_argument("--idle-redraw", default=None, help="... with this ?redraw= (full: every frame draws; page_shim.py)")
     p.add_argument("--slam-frames", type=int, default=0, help="also compare SLAM's rate headless and in the viewer")
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
@@ -324,8 +378,11 @@ def main() -> int:
                    help="the viewer's map update policy during the --slam-frames run")
     p.add_argument("--browser-splats", type=int, default=None,
                    help="the viewer's --browser-splats during the --slam-frames run")
+    p.add_argument("--layers", action="store_true",
+                   help="--slam-frames: also SLAM in the viewer's layers one by one (the worker without and with "
+                        "the live panel, the viewer with no browser), this checkout only")
     p.add_argument("--before", default=None, help="another checkout: its SLAM rate in the viewer too (--slam-frames)")
-    p.add_argument("--draw-while-running", default="splats",
+    p.add_argument("--draw-while-running", default="auto",
                    help="the viewer's --draw-while-running during the --slam-frames run; 'splats,points' "
                         "runs the viewer once with each after every headless run")
     args = p.parse_args()
@@ -352,14 +409,16 @@ def main() -> int:
             out["client_skipped"] = (f"{skipped}: not timed in the browser (software WebGL needs "
                                      "minutes there; pass --client-sizes to include them)")
     if Path(CHROMIUM).exists():
-        out["idle_browser"] = [idle_browser(int(n), style, served=page) for n in args.idle_sizes.split(",") if n
-                               for style in args.idle_styles.split(",") for page in args.idle_pages.split(",")]
+        viewports = [tuple(int(v) for v in size.split("x")) for size in args.idle_viewports.split(",")]
+        out["idle_browser"] = [idle_browser(int(n), style, served=page, viewport=viewport, redraw=args.idle_redraw)
+                               for n in args.idle_sizes.split(",") if n for style in args.idle_styles.split(",")
+                               for page in args.idle_pages.split(",") for viewport in viewports]
     if args.slam_frames:
         styles = tuple(args.draw_while_running.split(","))
         ours, before = [], []
         for _ in range(args.repeats):    # one repeat each in turn: both see the same load
             ours.append(slam_rate(args.slam_frames, args.engine, args.config, 1, args.map_updates,
-                                  args.browser_splats, styles))
+                                  args.browser_splats, styles, args.layers))
             if args.before:
                 before.append(slam_rate_of(Path(args.before).resolve(), args))
         out["slam_rate"] = merged(ours)

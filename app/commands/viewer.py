@@ -47,10 +47,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="while SLAM runs, send the browser at most about N Gaussians (a thinned preview with "
                         "larger splats; the whole map when paused or finished): for a browser that draws "
                         "WebGL in software on the machine running SLAM (default: the whole map)")
-    p.add_argument("--draw-while-running", default="splats", choices=RUNNING_STYLES,
-                   help="how the browser draws the growing map while SLAM runs: splats (default), or a point "
-                        "per Gaussian, which costs a browser that draws WebGL in software a fifth or less; "
-                        "splats when paused or finished (the page's 'Draw while running')")
+    p.add_argument("--draw-while-running", default="auto", choices=RUNNING_STYLES,
+                   help="how the browser draws the growing map while SLAM runs: splats, or a point per "
+                        "Gaussian, which costs a browser that draws WebGL in software a tenth of a splat; "
+                        "auto (default): points while a page that draws in software is connected, splats "
+                        "otherwise; splats when paused or finished (the page's 'Draw while running')")
 
 
 def positive_int(text: str) -> int:
@@ -80,7 +81,7 @@ def start_server(host: str, port: int | None, access=None):
     import viser
 
     from app.viewer.access import check_bind, tolerate_malformed_messages
-    from app.viewer.page_shim import serving
+    from app.viewer.page_shim import attach, serving
 
     check_bind(host)
     tolerate_malformed_messages()
@@ -89,8 +90,9 @@ def start_server(host: str, port: int | None, access=None):
         raise InputError(f"--port {port}: {host}:{port} is already in use; choose another port or pass --port 0")
     quiet = contextlib.redirect_stdout(io.StringIO()) if access is not None and access.required \
         else contextlib.nullcontext()
-    with access.guard() if access is not None else serving(), quiet:
+    with (access.guard() if access is not None else serving()) as pages, quiet:
         server = viser.ViserServer(host=host, port=DEFAULT_PORT if port is None else port, verbose=False)
+    attach(server, pages)
     if access is not None:
         access.port = server.get_port()
     if explicit and server.get_port() != port:

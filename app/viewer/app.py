@@ -67,7 +67,7 @@ class ViewerApp:
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
-                 draw_while_running: str = "splats", access: Access | None = None,
+                 draw_while_running: str = "auto", access: Access | None = None,
                  preview_frame=None):
         self.server = server
         tolerate_malformed_messages()            # a bad websocket message is dropped, the page stays

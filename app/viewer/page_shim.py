@@ -42,6 +42,14 @@ canvas are held: a draw with a camera never used before (viser's get_render capt
 one each time) or to an off-screen target (environment maps) is never held. `?redraw=full` in the page's URL turns it off,
 `?redraw=slow` on (with a GPU too); `window.__splatamRedraw` says which and counts draws.
 
+Such a page also says so to the server: the script adds `splatam_webgl=software` to the URL of
+the websocket viser's page opens (viser 1.1.1 opens it in a web worker, to which the page posts
+the URL in a `set_server` message: the script wraps Worker.postMessage for that one message), and
+the server counts those websockets while they are open (`software_pages(server)`). With
+`--draw-while-running auto` (the default) the map is drawn as points while SLAM runs whenever
+such a page is connected (app/viewer/scene.py): a point costs SwiftShader a tenth of a splat
+(docs/benchmarks.md, Viewer).
+
 How it is served: `serving()` wraps viser's `process_request` (as access.py does for tokens)
 and inserts the script after `<head>` of the page; `patch_page()` does the same for a written
 page (html_export.py). Only for the viser versions in SHIM_VISER_VERSIONS: another version
@@ -55,7 +63,8 @@ import dataclasses
 import gzip
 import logging
 import threading
-from urllib.parse import urlsplit
+import weakref
+from urllib.parse import parse_qs, urlsplit
 
 log = logging.getLogger(__name__)
 
@@ -63,6 +72,7 @@ SHIM_VISER_VERSIONS = ("1.1.1",)
 MARKER = "splatam-viewer: splat bounds"
 REDRAW_GAP_MS = 5000       # a software-WebGL page draws its view at most this often...
 REDRAW_INPUT_MS = 1500     # ...unless the page had input this recently
+SOFTWARE_PARAM = "splatam_webgl"   # in a software-WebGL page's websocket URL: =software
 
 SPLAT_BOUNDS_JS = """(function () {
   /* %s (app/viewer/page_shim.py): viser's splat quad geometry has a 2-D position attribute,
@@ -92,7 +102,7 @@ SOFTWARE_REDRAW_JS = """(function () {
   /* splatam-viewer: software redraws (app/viewer/page_shim.py): with WebGL drawn by the CPU, the
      view draws at most every %(gap)d ms unless the page is in use. */
   var mode = new URLSearchParams(window.location.search).get("redraw");
-  function software() {
+  function drawsInSoftware() {
     try {
       var gl = document.createElement("canvas").getContext("webgl");
       if (!gl) return false;
@@ -103,8 +113,25 @@ SOFTWARE_REDRAW_JS = """(function () {
       return /swiftshader|llvmpipe|softpipe|software/i.test(name);
     } catch (e) { return false; }
   }
-  var state = window.__splatamRedraw = {slow: mode === "slow" || (mode !== "full" && software()),
-                                         drawn: 0, held: 0};
+  var software = drawsInSoftware();
+  var state = window.__splatamRedraw = {slow: mode === "slow" || (mode !== "full" && software),
+                                         software: software, drawn: 0, held: 0};
+  if (software && window.Worker) {
+    /* tell the server (its websocket's URL says so): it may draw the map as points while SLAM
+       runs. viser 1.1.1 opens the websocket in a worker, sending it the URL as {type: "set_server"} */
+    var post = window.Worker.prototype.postMessage;
+    window.Worker.prototype.postMessage = function (data) {
+      var args = Array.prototype.slice.call(arguments);
+      if (data && data.type === "set_server" && typeof data.server === "string") {
+        try {
+          var u = new URL(data.server, window.location.href);
+          u.searchParams.set("%(param)s", "software");
+          args[0] = Object.assign({}, data, {server: u.toString()});
+        } catch (e) { /* the URL as it was */ }
+      }
+      return post.apply(this, args);
+    };
+  }
   if (!state.slow) return;
   var input = -1e9;
   function used() { input = performance.now(); }
@@ -134,7 +161,7 @@ SOFTWARE_REDRAW_JS = """(function () {
       return render.apply(r, arguments);
     };
   });
-})();""" % {"gap": REDRAW_GAP_MS, "input": REDRAW_INPUT_MS}
+})();""" % {"gap": REDRAW_GAP_MS, "input": REDRAW_INPUT_MS, "param": SOFTWARE_PARAM}
 
 _serve_lock = threading.Lock()
 
@@ -158,12 +185,56 @@ def patch_page(html: str) -> str:
     return f"{html[:at]}<script>{SPLAT_BOUNDS_JS}\n{SOFTWARE_REDRAW_JS}</script>{html[at:]}"
 
 
-def wrap(inner):
-    """viser's process_request, its page answered with `patch_page` applied (other files as they are)."""
+class SoftwarePages:
+    """The websockets of the pages that said they draw WebGL in software (their page script adds
+    SOFTWARE_PARAM=software to the websocket's URL); `count()`: those still connected."""
+
+    def __init__(self):
+        self._connections = weakref.WeakSet()
+        self._lock = threading.Lock()
+
+    def add(self, connection) -> None:
+        with self._lock:
+            self._connections.add(connection)
+
+    def count(self) -> int:
+        from websockets.protocol import State
+
+        live = (State.CONNECTING, State.OPEN)
+        with self._lock:
+            return sum(1 for c in self._connections if getattr(c, "state", State.CLOSED) in live)
+
+
+_pages_of: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()   # server -> its SoftwarePages
+
+
+def attach(server, pages: SoftwarePages) -> None:
+    """Remember which SoftwarePages (from `serving()`) hear `server`'s handshakes."""
+    _pages_of[server] = pages
+
+
+def software_pages(server) -> int:
+    """How many pages connected to `server` draw WebGL in software (0 for a server not made
+    through `serving()` and `attach()`, or a viser version the shim does not know)."""
+    pages = _pages_of.get(server)
+    return pages.count() if pages is not None else 0
+
+
+def _says_software(request) -> bool:
+    if request.headers.get("Upgrade", "").lower() != "websocket":
+        return False
+    return parse_qs(urlsplit(request.path).query).get(SOFTWARE_PARAM) == ["software"]
+
+
+def wrap(inner, pages: SoftwarePages | None = None):
+    """viser's process_request, its page answered with `patch_page` applied (other files as they
+    are); a websocket handshake from a page that draws in software is added to `pages`."""
     cache: dict[bytes, bytes] = {}       # viser's cached bodies (plain, gzip) -> patched
 
     def process_request(connection, request):
         response = inner(connection, request) if inner is not None else None
+        if response is None and pages is not None and _says_software(request):
+            pages.add(connection)
         if (response is None or response.status_code != 200
                 or urlsplit(request.path).path not in ("/", "/index.html")
                 or not response.headers.get("Content-Type", "").startswith("text/html")):
@@ -187,20 +258,24 @@ def serving(*outer):
     page and its websocket from one `websockets.asyncio.server.serve(..., process_request=...)`
     call made while the constructor runs and exposes no hook, so `serve` is replaced for that
     time (under a lock). `outer`: further process_request wrappers (access.py's token check),
-    applied outside this one, the first outermost."""
+    applied outside this one, the first outermost. Yields the SoftwarePages its handshakes fill
+    (`attach` it to the server made)."""
     import websockets.asyncio.server as ws_server
 
+    pages = SoftwarePages()
     with _serve_lock:
         original = ws_server.serve
 
         def serve(*args, **kwargs):
-            process_request = wrap(kwargs.get("process_request")) if applies() else kwargs.get("process_request")
+            process_request = kwargs.get("process_request")
+            if applies():
+                process_request = wrap(process_request, pages)
             for outer_wrap in reversed(outer):
                 process_request = outer_wrap(process_request)
             kwargs["process_request"] = process_request
             return original(*args, **kwargs)
         ws_server.serve = serve
         try:
-            yield
+            yield pages
         finally:
             ws_server.serve = original

@@ -11,7 +11,7 @@ import numpy as np
 import viser
 
 from ..images import colorize_depth, colorize_silhouette, depth_max_of, mosaic, to_uint8
-from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
+from ..snapshot import LIVE_TILE_WIDTH, MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot
 from .loops import loop_count_text, loop_status_lines
 from .plots import PlotsPanel
 
@@ -93,8 +93,8 @@ def live_mosaic(snap: MapSnapshot) -> np.ndarray | None:
         bottom = [(to_uint8(live.render_color), ""),
                   (colorize_depth(live.render_depth, dmax), ""),
                   (colorize_silhouette(live.render_alpha), "")]
-        return mosaic([top, bottom], tile_width=200)
-    return mosaic([top], tile_width=200)
+        return mosaic([top, bottom], tile_width=LIVE_TILE_WIDTH)
+    return mosaic([top], tile_width=LIVE_TILE_WIDTH)
 
 
 def _resize_like(img: np.ndarray, like: np.ndarray) -> np.ndarray:
@@ -112,7 +112,7 @@ class Panels:
 
     def __init__(self, server: viser.ViserServer, help_markdown: str, has_controls: bool,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
-                 draw_while_running: str = "splats", controls=None):
+                 draw_while_running: str = "auto", controls=None):
         gui = server.gui
         self.server = server
         with gui.add_folder("Run", order=0):
@@ -144,9 +144,9 @@ class Panels:
                      "software on the machine running SLAM")
             self.draw_while_running = cgui.add_dropdown(
                 "Draw while running", RUNNING_STYLES, initial_value=draw_while_running, visible=has_controls,
-                hint="How the growing map is drawn while SLAM runs: splats, or a point per Gaussian (a fifth "
-                     "or less of the cost for a browser that draws WebGL in software); splats when "
-                     "paused or finished")
+                hint="How the growing map is drawn while SLAM runs: splats, or a point per Gaussian (a tenth "
+                     "of the cost for a browser that draws WebGL in software); auto: points while such a "
+                     "browser has the page open, splats otherwise; splats when paused or finished")
         with gui.add_folder("Live frame", order=1, visible=has_controls) as self.live_folder:
             self.live_caption = gui.add_markdown("Waiting for the first frame…")
             self.live_image = gui.add_image(_placeholder(), format="jpeg", jpeg_quality=80)
@@ -157,7 +157,8 @@ class Panels:
     # ------------------------------------------------------------------ updates
     def show_preview(self, color: np.ndarray, depth: np.ndarray, frame_index: int = 0) -> None:
         """The capture's first images at once, before SLAM has processed them."""
-        self.live_image.image = mosaic([[(to_uint8(color), ""), (colorize_depth(depth), "")]], tile_width=200)
+        self.live_image.image = mosaic([[(to_uint8(color), ""), (colorize_depth(depth), "")]],
+                                       tile_width=LIVE_TILE_WIDTH)
         self.live_caption.content = (f"**Frame #{frame_index}** as captured: colour · depth. SLAM is processing "
                                      "it; our render of the map appears below it after the first frame.")
 

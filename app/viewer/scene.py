@@ -32,8 +32,10 @@ splats it draws, at least once a second even when nothing changes.
 
 `running_style` (`splatam-viewer --draw-while-running points`) draws each chunk as a point cloud
 while SLAM runs (a point per Gaussian, its colour, a size from the chunk's Gaussians): in
-software WebGL a point costs a fifth of a splat or less (docs/benchmarks.md, Viewer). Pausing or finishing
-sends splats again.
+software WebGL a point costs a tenth of a splat (docs/benchmarks.md, Viewer). "auto" (the
+default) does that while a page that draws WebGL in software is connected (its page script says
+so: page_shim.py) and sends splats otherwise; the style is chosen again at each update, so a
+page arriving or leaving changes it at the next keyframe. Pausing or finishing sends splats again.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ import numpy as np
 import viser
 
 from ..snapshot import MAP_UPDATE_POLICIES, RUNNING_STYLES, MapSnapshot, keyframe_buckets
+from .page_shim import software_pages
 
 WORLD_SCALE = 10.0
 
@@ -108,7 +111,7 @@ class MapLayer:
 
     def __init__(self, server: viser.ViserServer, consolidate_every: int = 5,
                  consolidate_interval_s: float = 10.0, policy: str = "keyframes", budget: int | None = None,
-                 running_style: str = "splats"):
+                 running_style: str = "auto"):
         if running_style not in RUNNING_STYLES:
             raise ValueError(f"map style while running must be one of {RUNNING_STYLES}, not {running_style!r}")
         self.server = server
@@ -204,8 +207,13 @@ class MapLayer:
         return 1 << int(np.ceil(np.log2(n / max(self.budget, 1))))
 
     def style_for(self, snap: MapSnapshot) -> str:
-        """`running_style` while SLAM runs, splats once it pauses or ends."""
-        return self.running_style if snap.state == "running" else "splats"
+        """`running_style` while SLAM runs ("auto": points while a page that draws WebGL in software
+        is connected), splats once it pauses or ends."""
+        if snap.state != "running":
+            return "splats"
+        if self.running_style == "auto":
+            return "points" if software_pages(self.server) else "splats"
+        return self.running_style
 
     def set_policy(self, policy: str) -> None:
         """Change when map changes reach the browser (MAP_UPDATE_POLICIES); the next update consolidates."""

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from app.snapshot import keyframe_buckets
+from app.snapshot import LIVE_TILE_WIDTH, keyframe_buckets
 from app.worker import SlamWorker
 from splat_core.errors import InputError
 from splat_core.io.ply import read_ply
@@ -99,6 +99,27 @@ def test_worker_live_render_with_the_real_renderer():
     assert np.isfinite(snap.live.psnr)
 
 
+def test_worker_renders_the_live_panel_no_wider_than_its_tiles():
+    """A 320 x 240 frame: the map is rendered at the panel's tile width, where it is shown as it
+    came (no pixels drawn only to be scaled away)."""
+    from app.viewer.panels import live_mosaic
+    from splat_core.frame import Frame
+
+    class Wide(FakePipeline):
+        def frame(self, k):
+            f = super().frame(k)
+            up = np.ones((4, 4, 1), np.float32)
+            return Frame(k, f.timestamp, np.kron(f.color, up), np.kron(f.depth, up[..., 0]),
+                         f.intrinsics.scaled(320, 240), f.c2w_ref)
+    w = SlamWorker(Wide(total=1, per_frame=200), live_render=True, render_backend="reference")
+    w.start()
+    snap = w.wait_for(lambda s: s.state == "finished", 60)
+    assert snap.live is not None and snap.live.render_color is not None, w.error
+    assert snap.live.color.shape == (240, 320, 3)                    # the captured frame as it is
+    assert snap.live.render_color.shape == (150, LIVE_TILE_WIDTH, 3)
+    assert live_mosaic(snap).shape == (2 * 150, 3 * LIVE_TILE_WIDTH, 3)
+
+
 class FakeClient:
     """Enough of a viser ClientHandle for the scrubber: its own GUI and scene on the real server,
     recording which scene names it shadows with hidden nodes."""
@@ -174,7 +195,7 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
         assert app.map_layer.budget == 5000
         app.panels.browser_splats.value = 0
         assert app.map_layer.budget is None
-        assert app.map_layer.running_style == "splats"      # and "Draw while running" the style
+        assert app.map_layer.running_style == "auto"        # and "Draw while running" the style
         app.panels.draw_while_running.value = "points"
         assert app.map_layer.running_style == "points"
         # one export path: map and trajectory land in the run folder's exports/
@@ -341,6 +362,40 @@ def test_points_while_running_then_splats(server):
     assert layer._nodes["/map/kf_000005"].point_size == pytest.approx(0.01 * WORLD_SCALE * 2)
     with pytest.raises(ValueError, match="points"):
         MapLayer(server, running_style="dots")
+
+
+def test_auto_draws_points_while_a_page_that_draws_in_software_is_connected(server):
+    """`auto` (the default): points while a page that said it draws WebGL in software is connected
+    (page_shim.SoftwarePages: its websocket open), splats otherwise and once SLAM pauses."""
+    from websockets.protocol import State
+
+    from app.snapshot import KeyframeView, MapSnapshot
+    from app.viewer import page_shim
+    from app.viewer.scene import MapLayer
+
+    m = blob_map(100, 0).to_numpy()
+    kfs = (KeyframeView(0, np.eye(4), np.zeros((4, 4, 3), np.uint8)),)
+
+    class Websocket:
+        state = State.OPEN
+
+    def drawn(version, state="running"):
+        assert layer.update(MapSnapshot(version, state, 5, 20, version, m, kfs))
+        return layer.style
+
+    layer = MapLayer(server, policy="continuous")
+    assert layer.running_style == "auto"
+    assert drawn(1) == "splats"                                    # a plain viser server: nobody said so
+    pages = page_shim.SoftwarePages()
+    page_shim.attach(server, pages)
+    assert drawn(2) == "splats"                                    # no page yet
+    page = Websocket()
+    pages.add(page)
+    assert drawn(3) == "points" and page_shim.software_pages(server) == 1
+    assert drawn(4, "paused") == "splats"
+    assert drawn(5) == "points"
+    page.state = State.CLOSED                                      # the page left
+    assert drawn(6) == "splats" and page_shim.software_pages(server) == 0
 
 
 def test_browse_mode_snapshot(tmp_path):

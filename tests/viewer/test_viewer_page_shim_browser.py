@@ -117,6 +117,31 @@ def test_page_patch_inserts_the_script_once_and_keeps_gzip_and_length():
     assert serve(None, Request("/x.html", Headers())).body == body             # only the page itself
 
 
+def test_a_page_that_draws_in_software_is_counted_while_its_websocket_is_open():
+    from websockets.datastructures import Headers
+    from websockets.http11 import Request
+    from websockets.protocol import State
+
+    from app.viewer import page_shim
+
+    class Websocket:
+        state = State.CONNECTING
+
+    pages = page_shim.SoftwarePages()
+    serve = page_shim.wrap(lambda connection, request: None, pages)   # viser lets handshakes through
+    upgrade = Headers({"Upgrade": "websocket", "Connection": "Upgrade"})
+    says = f"/?{page_shim.SOFTWARE_PARAM}=software"
+    software, gpu, plain = Websocket(), Websocket(), Websocket()
+    assert serve(software, Request(says, upgrade)) is None
+    assert serve(gpu, Request("/", upgrade)) is None                    # a page with a GPU says nothing
+    serve(plain, Request(says, Headers()))                             # not a websocket handshake
+    assert pages.count() == 1
+    software.state = State.OPEN
+    assert pages.count() == 1
+    software.state = State.CLOSED
+    assert pages.count() == 0
+
+
 def test_html_export_carries_the_script(tmp_path):
     from app.html_export import html_page
     from app.viewer import page_shim
@@ -143,8 +168,11 @@ def canvas_centre(page):
 def test_software_webgl_page_holds_redraws_and_still_shows_the_last_change(browser):
     """Headless Chromium draws WebGL in software (SwiftShader): the viewer's page holds its view's
     draws to one per gap while nobody uses it, and the last of a burst of scene changes is still
-    drawn on the canvas; get_render captures are never held. `?redraw=full` draws every frame."""
+    drawn on the canvas; get_render captures are never held. `?redraw=full` draws every frame. The
+    page tells the server it draws in software while it is open (scene.py's `auto` then draws the map
+    as points while SLAM runs)."""
     from app.commands.viewer import start_server
+    from app.viewer import page_shim
 
     server = start_server("127.0.0.1", 0)
     try:
@@ -152,6 +180,8 @@ def test_software_webgl_page_holds_redraws_and_still_shows_the_last_change(brows
         state = page.evaluate("() => window.__splatamRedraw")
         if not state["slow"]:
             pytest.skip("this Chromium draws WebGL with a GPU: the page draws every frame there")
+        assert state["software"]              # and it told the server so (through its websocket's URL)
+        wait_until(lambda: page_shim.software_pages(server) == 1, 60, what="the page counted as drawing in software")
         look(client, (0.0, 0.0, -3.0), (0.0, 0.0, 0.0))
         box = server.scene.add_box("/box", color=(255, 0, 0), dimensions=(2.0, 2.0, 2.0))
         wait_until(lambda: canvas_centre(page)[0] > canvas_centre(page)[1] + 80, 60, what="red box on the canvas")
@@ -166,6 +196,7 @@ def test_software_webgl_page_holds_redraws_and_still_shows_the_last_change(brows
                           "get_render while draws are held")     # 150 x 200: the box in the middle
         assert img.shape[:2] == (150, 200)
         page.close()
+        wait_until(lambda: page_shim.software_pages(server) == 0, 60, what="the closed page no longer counted")
         full = browser.new_page(viewport={"width": 400, "height": 300})
         full.goto(f"http://127.0.0.1:{server.get_port()}/?redraw=full")
         full.wait_for_function("() => !document.body.innerText.includes('Connecting')", timeout=60_000)
