@@ -248,7 +248,7 @@ class ViewerApp:
             for view in list(self.novel_views.values()):                    # every map version
                 view.refresh()
         p = self.panels
-        p.update_status(snap)
+        p.update_status(snap, self.map_layer.style)
         p.update_plots(snap)
         self.export_panel.follow(snap)
         if snap.live is not None and (prev is None or prev.live is not snap.live):

@@ -20,7 +20,8 @@ def _placeholder(h: int = 120, w: int = 320) -> np.ndarray:
     return np.full((h, w, 3), 40, np.uint8)
 
 
-def status_markdown(snap: MapSnapshot) -> str:
+def status_markdown(snap: MapSnapshot, map_style: str = "splats") -> str:
+    """The status text; `map_style`: how the 3D view draws the map now (MapLayer.style)."""
     if snap.state == "browse":
         lines = [f"**Browsing** {snap.message}", f"Gaussians: **{snap.num_gaussians:,}**",
                  f"Poses: {len(snap.estimated_c2w)} · keyframes: {len(snap.keyframes)}{loop_count_text(snap.loops)}"]
@@ -50,6 +51,9 @@ def status_markdown(snap: MapSnapshot) -> str:
     elif snap.lost_frames:
         lines.append(f"⚠ tracking was lost on {len(snap.lost_frames)} frame(s) and recovered; last lost: "
                      f"frame {snap.lost_frames[-1]}")
+    if map_style == "points" and snap.state == "running":
+        lines.append("The map is drawn as points while SLAM runs (a page without a GPU is open), as splats "
+                     "once it pauses or ends")
     if snap.message:
         lines.append(snap.message)
     return "  \n".join(lines)
@@ -162,8 +166,8 @@ class Panels:
         self.live_caption.content = (f"**Frame #{frame_index}** as captured: colour · depth. SLAM is processing "
                                      "it; our render of the map appears below it after the first frame.")
 
-    def update_status(self, snap: MapSnapshot) -> None:
-        self.status.content = status_markdown(snap)
+    def update_status(self, snap: MapSnapshot, map_style: str = "splats") -> None:
+        self.status.content = status_markdown(snap, map_style)
         total = max(snap.total_frames, 1)
         self.progress.value = 100.0 if snap.state == "browse" else 100.0 * snap.processed / total
         self.frame_text.value = str(max(snap.processed, 0))

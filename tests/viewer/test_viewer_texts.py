@@ -53,3 +53,10 @@ def test_the_status_counts_the_frames_a_live_source_dropped():
     text = status_markdown(dataclasses.replace(snapshot("running"), received=(30, 26)))
     assert "Frames received: 30 · processed 4 · dropped **26**" in text
     assert "received" not in status_markdown(snapshot("running"))
+
+
+def test_the_status_says_when_the_map_is_drawn_as_points():
+    """`--draw-while-running auto` draws points for a page without a GPU: the status says why."""
+    assert "drawn as points" in status_markdown(snapshot("running"), "points")
+    assert "points" not in status_markdown(snapshot("running"), "splats")
+    assert "points" not in status_markdown(snapshot("paused"), "points")    # splats again once paused
