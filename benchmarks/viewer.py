@@ -208,13 +208,22 @@ def idle_browser(n: int, style: str = "splats", seconds: float = 20.0, served: s
             drawn1 = page.evaluate(drawn)
             cpu = browser_cpu_seconds() - cpu0
             frames = page.evaluate("window.__frames") - frames0
-            draws = frames if redraw == "full" or drawn0 is None else drawn1 - drawn0
+            counted = drawn0 is not None and redraw != "full"      # the shim counts only held pages' draws
+            draws = drawn1 - drawn0 if counted else frames
             return dict(gaussians=n, style=style, page=served, viewport=list(viewport), redraw=redraw,
                         browser_cpu_cores=round(cpu / dt, 3), frames_per_second=round(frames / dt, 2),
-                        drawn_per_second=None if drawn0 is None or redraw == "full" else round((drawn1 - drawn0) / dt, 2),
+                        drawn_per_second=round(draws / dt, 2) if counted else None,
                         cpu_seconds_per_draw=round(cpu / draws, 3) if draws else None)
     finally:
         server.stop()
+
+
+def layer_rate(headless: float, runs: list) -> dict:
+    """A --layers record: the median s/frame of `runs` and its rate over the headless median's."""
+    import statistics
+
+    m = statistics.median(runs)
+    return dict(s_per_frame=round(m, 3), fps_over_headless_fps=round(headless / m, 3), runs=runs)
 
 
 def style_option(style: str) -> dict:
@@ -244,22 +253,21 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
-    def layer(browserless_viewer: bool, live_render: bool = True):
+    def layer(with_viewer: bool, live_render: bool = True):
+        """SLAM's median s/frame in the worker alone, or in the viewer with no browser."""
         pipe = pipeline()
         worker = SlamWorker(pipe, live_render=live_render)
-        if not browserless_viewer:
-            worker.start()
-            worker.join()
-            return median(pipe.records)
-        server = start_server("127.0.0.1", 0)
+        server = start_server("127.0.0.1", 0) if with_viewer else None
         try:
-            app = build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
-                               **style_option(styles[0]))
+            app = server and build_viewer(server, worker, map_updates=map_updates, browser_splats=browser_splats,
+                                          **style_option(styles[0]))
             worker.start()
             worker.join()
-            app.close()
+            if app:
+                app.close()
         finally:
-            server.stop()
+            if server:
+                server.stop()
         return median(pipe.records)
 
     layer_runs = {"worker, no live panel": [], "worker and live panel": [], "viewer, no browser": []}
@@ -305,9 +313,7 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
                              page_redraw=redraw[style],
                              runs=dict(viewer=viewer[style], browser_cpu_cores=browser_cpu[style]))
                         for style in styles],
-                layers={name: dict(s_per_frame=round(statistics.median(runs), 3),
-                                   fps_over_headless_fps=round(h / statistics.median(runs), 3), runs=runs)
-                        for name, runs in layer_runs.items() if runs})
+                layers={name: layer_rate(h, runs) for name, runs in layer_runs.items() if runs})
 
 
 def merged(rates: list[dict]) -> dict:
@@ -327,11 +333,8 @@ def merged(rates: list[dict]) -> dict:
                           browser_cpu_cores=round(statistics.median(cpu), 3),
                           page_redraw=[r["viewer"][k].get("page_redraw") for r in rates],
                           runs=dict(viewer=runs, browser_cpu_cores=cpu)))
-    layers = {}
-    for name in first.get("layers", {}):
-        runs = [x for r in rates for x in r["layers"][name]["runs"]]
-        layers[name] = dict(s_per_frame=round(statistics.median(runs), 3),
-                            fps_over_headless_fps=round(h / statistics.median(runs), 3), runs=runs)
+    layers = {name: layer_rate(h, [x for r in rates for x in r["layers"][name]["runs"]])
+              for name in first.get("layers", {})}
     first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views, layers=layers)
     return first
 
