@@ -190,3 +190,22 @@ def test_frames_after_the_first_render():
     for i in range(5):
         f = src[i]
         assert f.color.shape == (240, 320, 3) and f.depth.shape == (240, 320) and (f.depth > 0).any()
+
+
+@pytest.mark.parametrize("source", ["orbit", "corridor", "lap", "small"])
+def test_the_numba_ray_caster_draws_what_the_numpy_one_did(source):
+    """raycast.py reproduces the numpy caster it replaced (helpers/numpy_scene.py) operation for
+    operation: the same float32 frames, up to a rare last-bit flip where numpy's own SIMD tanh
+    differs from libm's (none on the machines measured: docs/benchmarks.md, "Live rate")."""
+    from helpers.numpy_scene import render_numpy
+
+    from splat_core.synthetic import CorridorSource, LoopSource
+    src = {"orbit": lambda: SyntheticSource(), "corridor": lambda: CorridorSource(n_frames=400),
+           "lap": lambda: LoopSource(), "small": lambda: SyntheticSource(seed=3, width=80, height=60)}[source]()
+    for i in np.linspace(0, len(src) - 1, 4).astype(int):
+        color, depth = src.scene.render(src.c2w[i], src.intrinsics)
+        color0, depth0 = render_numpy(src.scene, src.c2w[i], src.intrinsics)
+        assert color.dtype == np.float32 and depth.dtype == np.float32
+        np.testing.assert_allclose(color, color0, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(depth, depth0, rtol=1e-6, atol=0)
+        assert (color != color0).mean() < 1e-4 and (depth != depth0).mean() < 1e-4
