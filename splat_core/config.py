@@ -142,7 +142,8 @@ class Config:
              "loop_closure: min_gap_frames >= 1, min_inliers >= 3, feature_cache >= 1, max_candidates, "
              "remap_iterations, orb_by_map and orb_sample >= 0"),
             (self.mapping.map_every >= 1, "mapping.map_every must be >= 1"),
-            (self.keyframes.every >= 1, "keyframes.every must be >= 1"),
+            (self.keyframes.every >= 1 and self.keyframes.from_end >= 1,
+             "keyframes.every and keyframes.from_end must be >= 1"),
             (self.tracking.max_gap_ratio >= 1, "tracking.max_gap_ratio must be >= 1"),
             (self.keyframes.memory_mb >= 0, "keyframes.memory_mb must be >= 0"),
             (self.keyframes.selection in KEYFRAME_SELECTIONS, "keyframes.selection must be overlap or random"),

@@ -81,8 +81,9 @@ class Keyframe:
 
 
 def is_keyframe_time(index: int, total: int | None, every: int, step_before: int | None = None,
-                     step: int | None = None) -> bool:
-    """Frame 0, every `every`-th frame ((index+1) % every == 0), and the second-to-last frame.
+                     step: int | None = None, from_end: int = 2) -> bool:
+    """Frame 0, every `every`-th frame ((index+1) % every == 0), and the frame `from_end` from the end
+    of a run of `total` frames (2: the second-to-last, SplaTAM's rule).
 
     With `step` and `step_before` (the frame's and the frame before's place in the capture, when
     frames were dropped between processed ones): the first frame at or past every `every`-th capture
@@ -90,7 +91,7 @@ def is_keyframe_time(index: int, total: int | None, every: int, step_before: int
     step_before = index - 1 (no frame dropped) the two rules agree."""
     if step is None or step_before is None:
         step, step_before = index, index - 1
-    return index == 0 or (step + 1) // every > (step_before + 1) // every or (total is not None and index == total - 2)
+    return index == 0 or (step + 1) // every > (step_before + 1) // every or (total is not None and index == total - from_end)
 
 
 def overlap_scores(depth: np.ndarray, w2c: np.ndarray, intr: Intrinsics, keyframes: list[Keyframe],

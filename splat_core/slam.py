@@ -77,7 +77,7 @@ class SplaTAM(SlamState):
         self.loops: list[LoopRecord] = []        # every loop closed, oldest first
         self.scene_radius: float | None = None
         self.rng = np.random.default_rng(config.seed)
-        self.total_frames = total_frames          # lets the second-to-last frame become a keyframe
+        self.total_frames = total_frames          # lets a frame near the end become a keyframe (keyframes.from_end)
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
@@ -118,7 +118,8 @@ class SplaTAM(SlamState):
         n-th capture frame (at the run's stride) and the second-to-last; or one deferred before is owed."""
         owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
         return self.lost_tracking.reason(t) is None and (owed or is_keyframe_time(
-            t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t)))
+            t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t),
+            self.config.keyframes.from_end))
 
     def _mark_keyframe(self, t: int, defer: bool) -> None:
         """Frame t's decision: a due keyframe kept, or owed on when `defer` (the live mapper is behind)

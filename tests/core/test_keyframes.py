@@ -14,6 +14,11 @@ from helpers.engine import small_source
 
 def test_keyframe_schedule():
     assert [t for t in range(12) if is_keyframe_time(t, 12, 5)] == [0, 4, 9, 10]
+    # keyframes.from_end 1 (the `live` preset): the last frame instead of the second-to-last; on a
+    # length that is a multiple of `every` the last frame is a keyframe already, and nothing is added.
+    assert [t for t in range(12) if is_keyframe_time(t, 12, 5, from_end=1)] == [0, 4, 9, 11]
+    assert [t for t in range(10) if is_keyframe_time(t, 10, 5, from_end=1)] == [0, 4, 9]
+    assert [t for t in range(10) if is_keyframe_time(t, 10, 5)] == [0, 4, 8, 9]
 
 
 def test_keyframe_schedule_in_capture_frames_when_frames_were_dropped():
