@@ -207,11 +207,8 @@ class DensifyConfig:
 class KeyframeConfig:
     every: int = setting(5, "frame 0, every n-th frame and the second-to-last become keyframes", unit="frames",
                          trades="smaller: more keyframes to map from, more memory")
-    from_end: int = setting(2, "on a capture of known length, the frame this many from its end is a keyframe too: "
-                            "2, the second-to-last (SplaTAM's), or 1, the last (the `live` preset: its mapper maps "
-                            "only keyframes, and on a length that is a multiple of `every` the last frame is one "
-                            "already, so the second-to-last cost a mapper step at the end that changed nothing "
-                            "measurable)", unit="frames")
+    from_end: int = setting(2, "on a capture of known length, the frame this many from its end is a keyframe too: 2 "
+                            "(SplaTAM's) or 1, the last (`live`: one mapper step at the end, not two)", unit="frames")
     clock: KeyframeClock = setting("capture", "what `every` counts: capture frames at the run's stride (a frame "
                                    "dropped by --realtime or a stream counts; the first frame at or past every n-th "
                                    "becomes a keyframe) or processed frames; the same with every frame processed",
