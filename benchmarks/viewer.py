@@ -8,7 +8,8 @@
 
 --slam-frames N: SLAM's rate on the first N synthetic frames headless (Pipeline alone) and in the
 viewer with a browser connected (SlamWorker + build_viewer on the server `splatam-viewer` starts,
-its page scripts included, + headless Chromium on the page, once for each --draw-while-running style), one after the other in this process; the median wall-clock
+its page scripts included, + headless Chromium on the page, once for each --draw-while-running style), one after the other in this process
+(headless first in even repeats, last in odd ones: --first-repeat numbers them); the median wall-clock
 s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
 Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer). --before DIR: the same
 measurement of another checkout's app and engine (a child process importing from DIR), each
@@ -233,9 +234,12 @@ def style_option(style: str) -> dict:
 
 
 def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updates: str = "keyframes",
-              browser_splats: int | None = None, styles: tuple = ("splats",), layers: bool = False) -> dict:
+              browser_splats: int | None = None, styles: tuple = ("splats",), layers: bool = False,
+              first_repeat: int = 0) -> dict:
     """Median s/frame of SLAM headless and inside the viewer with a browser watching, for each
-    way of drawing the map while SLAM runs (`styles`); each repeat runs headless, then each style.
+    way of drawing the map while SLAM runs (`styles`); each repeat runs headless and each style, headless
+    first in even repeats and last in odd ones, counting from `first_repeat` (so that neither side
+    always runs first on a machine that warms up or is disturbed in step with the repeats).
     `layers`: each repeat also runs SLAM in the viewer's layers one by one, where its cost goes:
     the SLAM worker alone without and with the live panel's render, and the viewer (server,
     worker, live panel) with no browser."""
@@ -275,12 +279,16 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     viewer = {style: [] for style in styles}
     browser_cpu = {style: [] for style in styles}
     redraw = {style: None for style in styles}      # the page's draw counts (page_shim.py), if it has them
-    for _ in range(repeats):
+    def run_headless():
         pipe = pipeline()
         while pipe.step() is not None:
             pass
         pipe.finish()
         headless.append(median(pipe.records))
+
+    for repeat in range(first_repeat, first_repeat + repeats):
+        if repeat % 2 == 0:
+            run_headless()
         if layers:
             layer_runs["worker, no live panel"].append(layer(False, live_render=False))
             layer_runs["worker and live panel"].append(layer(False))
@@ -303,6 +311,8 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
                 app.close()
             finally:
                 server.stop()
+        if repeat % 2 == 1:
+            run_headless()
     h = statistics.median(headless)
     return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
                 headless_s_per_frame=round(h, 3), headless_runs=headless,
@@ -339,13 +349,13 @@ def merged(rates: list[dict]) -> dict:
     return first
 
 
-def slam_rate_of(code: Path, args) -> dict:
-    """slam_rate() of another checkout (one repeat), in a child process importing from `code`."""
+def slam_rate_of(code: Path, args, repeat: int) -> dict:
+    """slam_rate() of another checkout (one repeat, number `repeat`), in a child process importing from `code`."""
     import subprocess
 
     cmd = [sys.executable, __file__, "--json", "--sizes", "", "--client-sizes", "", "--slam-frames",
            str(args.slam_frames), "--engine", args.engine, "--config", args.config, "--map-updates",
-           args.map_updates, "--draw-while-running", args.draw_while_running]
+           args.map_updates, "--draw-while-running", args.draw_while_running, "--first-repeat", str(repeat)]
     if args.browser_splats is not None:
         cmd += ["--browser-splats", str(args.browser_splats)]
     done = subprocess.run(cmd, capture_output=True, text=True, env=dict(os.environ, SPLATAM_CODE=str(code)),
@@ -377,6 +387,8 @@ def main() -> int:
     p.add_argument("--engine", default="live")
     p.add_argument("--config", default="cpu")
     p.add_argument("--repeats", type=int, default=1)
+    p.add_argument("--first-repeat", type=int, default=0,
+                   help="number the repeats from this one: headless runs first in even repeats, last in odd ones")
     p.add_argument("--map-updates", default="keyframes", choices=MAP_UPDATE_POLICIES,
                    help="the viewer's map update policy during the --slam-frames run")
     p.add_argument("--browser-splats", type=int, default=None,
@@ -419,11 +431,11 @@ def main() -> int:
     if args.slam_frames:
         styles = tuple(args.draw_while_running.split(","))
         ours, before = [], []
-        for _ in range(args.repeats):    # one repeat each in turn: both see the same load
+        for i in range(args.repeats):    # one repeat each in turn: both see the same load
             ours.append(slam_rate(args.slam_frames, args.engine, args.config, 1, args.map_updates,
-                                  args.browser_splats, styles, args.layers))
+                                  args.browser_splats, styles, args.layers, first_repeat=args.first_repeat + i))
             if args.before:
-                before.append(slam_rate_of(Path(args.before).resolve(), args))
+                before.append(slam_rate_of(Path(args.before).resolve(), args, args.first_repeat + i))
         out["slam_rate"] = merged(ours)
         if before:
             out["slam_rate_before"] = dict(merged(before), code=str(Path(args.before).resolve()),

@@ -205,7 +205,7 @@ class DensifyConfig:
 
 @dataclass
 class KeyframeConfig:
-    every: int = setting(5, "frame 0, every n-th frame and the second-to-last become keyframes", unit="frames",
+    every: int = setting(5, "frame 0, every n-th frame and one near the end (from_end) become keyframes", unit="frames",
                          trades="smaller: more keyframes to map from, more memory")
     from_end: int = setting(2, "on a capture of known length, the frame this many from its end is a keyframe too: 2 "
                             "(SplaTAM's) or 1, the last (`live`: one mapper step at the end, not two)", unit="frames")

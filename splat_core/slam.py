@@ -115,7 +115,8 @@ class SplaTAM(SlamState):
 
     def keyframe_due(self, t: int) -> bool:
         """Frame t (tracked, not lost) falls due as a keyframe: frame 0, the first frame at or past every
-        n-th capture frame (at the run's stride) and the second-to-last; or one deferred before is owed."""
+        n-th capture frame (at the run's stride) and the one keyframes.from_end from the end (the second-to-last
+        by default); or one deferred before is owed."""
         owed = t > 0 and self.keyframe_marks[t - 1] == DEFERRED
         return self.lost_tracking.reason(t) is None and (owed or is_keyframe_time(
             t, self.total_frames, self.config.keyframes.every, self.capture_step(t - 1), self.capture_step(t),
