@@ -2,7 +2,11 @@
 the loopback-only configuration: `splatam capture nerfcapture`, `splatam run --input nerfcapture://`.
 
 Every DDS participant in this process and its children uses ../shared/reference/cyclonedds-loopback.xml
-(127.0.0.1 only, no multicast): CYCLONEDDS_URI is set below, at import, before any participant.
+(127.0.0.1 only, no multicast): CYCLONEDDS_URI is set below, at import, before any participant. It
+adds one setting to that file: a port base of this test process's own (Discovery/Ports/Base), so
+that two test runs on one machine do not discover each other's participants. Both listen on domain
+0, topic "Frames", where the app publishes; with the file alone, a run received the other run's
+frames and failed (two concurrent runs of this module, 2026-12-07: "received 10, frames 2").
 """
 
 from __future__ import annotations
@@ -22,7 +26,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 LOOPBACK = REPO.parent / "shared" / "reference" / "cyclonedds-loopback.xml"
-os.environ["CYCLONEDDS_URI"] = f"file://{LOOPBACK}"
+# Cyclone DDS's ports for domain 0 lie within ~50 of the base: bases 100 apart, 7500-27400
+PORT_BASE = 7500 + 100 * (os.getpid() % 200)
+os.environ["CYCLONEDDS_URI"] = f"file://{LOOPBACK},<Discovery><Ports><Base>{PORT_BASE}</Base></Ports></Discovery>"
 
 from app.cli import splatam_main  # noqa: E402
 from splat_core.errors import InputError  # noqa: E402
