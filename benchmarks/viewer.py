@@ -257,6 +257,13 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
+    def run_headless():
+        pipe = pipeline()
+        while pipe.step() is not None:
+            pass
+        pipe.finish()
+        headless.append(median(pipe.records))
+
     def layer(with_viewer: bool, live_render: bool = True):
         """SLAM's median s/frame in the worker alone, or in the viewer with no browser."""
         pipe = pipeline()
@@ -279,13 +286,6 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     viewer = {style: [] for style in styles}
     browser_cpu = {style: [] for style in styles}
     redraw = {style: None for style in styles}      # the page's draw counts (page_shim.py), if it has them
-    def run_headless():
-        pipe = pipeline()
-        while pipe.step() is not None:
-            pass
-        pipe.finish()
-        headless.append(median(pipe.records))
-
     for repeat in range(first_repeat, first_repeat + repeats):
         if repeat % 2 == 0:
             run_headless()
