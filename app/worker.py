@@ -18,6 +18,7 @@ import traceback
 import numpy as np
 
 from splat_core.metrics import psnr
+from splat_core.run.report import ate_cm
 
 from .live_preview import LivePreview
 from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, VersionArrays,
@@ -34,8 +35,8 @@ class SlamWorker(threading.Thread):
     live_render: render the map at the tracked pose (colour, depth, silhouette) for the panel,
     at most `live_max_width` pixels wide (the panel's tile width: the PSNR beside it is of that
     size too), in a LivePreview thread: at most every `live_interval_s`
-    and at most `live_duty` of one core (the page shows about two updates a second; a render per
-    frame, or one in the SLAM thread, would only slow SLAM down). Between those the panel keeps
+    and at most `live_duty` of one core (the viewer shows one update a second while SLAM runs,
+    app/viewer/app.py; a render per frame, or one in the SLAM thread, would only slow SLAM down). Between those the panel keeps
     the last rendered frame, so image and render always belong together; a pause and the run's
     end show the last frame's render.
     prepare: called as `prepare(report)` in the thread before the first frame (the viewer compiles
@@ -46,7 +47,7 @@ class SlamWorker(threading.Thread):
     def __init__(self, pipeline, *, start_paused: bool = False, live_render: bool = True,
                  render_backend: str = "auto", live_max_width: int = LIVE_TILE_WIDTH,
                  map_interval_s: float = 0.4, out_dir=None, frame_delay_s: float = 0.0,
-                 live_interval_s: float = 0.4, live_duty: float = 0.25, prepare=None):
+                 live_interval_s: float = 1.0, live_duty: float = 0.25, prepare=None):
         super().__init__(name="slam-worker", daemon=True)
         self.pipeline = pipeline
         self.prepare = prepare
@@ -73,6 +74,7 @@ class SlamWorker(threading.Thread):
         self._map_arrays = freeze_gaussians(empty_gaussians())
         self._map_copied_at = -1e9
         self._keyframe_views: dict[int, tuple] = {}     # frame -> (w2c it was made at, KeyframeView)
+        self._keyframes_seen: tuple | None = None       # (frames, w2cs, views) of the last _keyframes()
         self._history = {k: [] for k in HISTORY_KEYS}
         self._timestamps: list[float] = []
         self._live: LiveView | None = None
@@ -193,7 +195,8 @@ class SlamWorker(threading.Thread):
         self._last_frame_index = int(r.index)
         self._timestamps.append(float(r.timestamp))
         seconds = float(pipe.records[-1]["wall_seconds"])
-        ate = pipe.ate_cm()
+        poses = pipe.estimated_c2w(), pipe.reference_c2w()     # once a frame: O(frames) each
+        ate = ate_cm(*poses)
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
                            ("seconds", seconds), ("psnr", None), ("num_gaussians", r.num_gaussians)):
             self._history[key].append(np.nan if value is None else float(value))
@@ -202,7 +205,7 @@ class SlamWorker(threading.Thread):
         else:
             self._preview.offer(r, pipe.map_version())
             self._show(self._preview.latest())
-        self._publish(force_map=bool(r.is_keyframe))
+        self._publish(force_map=bool(r.is_keyframe), poses=poses)
 
     def _render_live(self, r, map_version) -> LiveView:
         """(In the LivePreview thread.) `map_version`: a published map, never a tensor the mapper
@@ -234,17 +237,24 @@ class SlamWorker(threading.Thread):
 
     # ------------------------------------------------------------------ snapshots
     def _keyframes(self) -> tuple:
-        """A view per keyframe, made again when its pose changed (a loop correction moves keyframes)."""
+        """A view per keyframe, made again when its pose changed (a loop correction moves keyframes);
+        the same tuple as last time while no keyframe came or moved (one comparison, not one a keyframe)."""
+        kfs = self.pipeline.keyframes()
+        frames = tuple(int(kf.frame_index) for kf in kfs)
+        w2cs = np.array([kf.w2c for kf in kfs], np.float64).reshape(-1, 4, 4)
+        seen = self._keyframes_seen
+        if seen is not None and seen[0] == frames and np.array_equal(seen[1], w2cs):
+            return seen[2]
         views = []
-        for kf in self.pipeline.keyframes():
-            w2c = np.array(kf.w2c, np.float64)
+        for kf, w2c in zip(kfs, w2cs):
             w2c_seen, view = self._keyframe_views.get(kf.frame_index, (None, None))
             if view is None or not np.array_equal(w2c, w2c_seen):
                 thumbnail = view.thumbnail if view is not None else frozen(make_thumbnail(kf.color))
                 view = KeyframeView(int(kf.frame_index), frozen(np.linalg.inv(w2c)), thumbnail, kf)
                 self._keyframe_views[kf.frame_index] = (w2c, view)
             views.append(view)
-        return tuple(views)
+        self._keyframes_seen = (frames, w2cs, tuple(views))
+        return self._keyframes_seen[2]
 
     def _loops(self) -> tuple | None:
         """The loops of the map version shown (None: loop closure is off in this run)."""
@@ -254,15 +264,17 @@ class SlamWorker(threading.Thread):
         version = getattr(self._map_arrays, "version", None)
         return tuple(getattr(version, "loops", ()) or ())
 
-    def _publish(self, force_map: bool = False, message: str = "") -> None:
+    def _publish(self, force_map: bool = False, message: str = "", poses: tuple | None = None) -> None:
+        """`poses`: (estimated_c2w, reference_c2w) when the caller has them already."""
         pipe = self.pipeline
         now = time.monotonic()
         if force_map or now - self._map_copied_at >= self.map_interval_s:
             self._map_arrays = VersionArrays(pipe.map_version())   # no copy: versions are immutable
             self._map_version += 1
             self._map_copied_at = now
-        est = pipe.estimated_c2w() if self._last_frame_index >= 0 else []
-        ref = pipe.reference_c2w() if self._last_frame_index >= 0 else []
+        if poses is None:
+            poses = (pipe.estimated_c2w(), pipe.reference_c2w()) if self._last_frame_index >= 0 else ([], [])
+        est, ref = poses
         reference = None
         if ref and any(p is not None for p in ref):
             reference = np.stack([np.full((4, 4), np.nan) if p is None else np.asarray(p, np.float64)

@@ -6,6 +6,7 @@ keeps exploring; prints JSON (one object per run).
     python benchmarks/long_run.py memory --frames 400 --code OLD_CHECKOUT     # the same run on other code
     python benchmarks/long_run.py time --frames 1000 --size 320x240 --preset cpu
     python benchmarks/long_run.py time --frames 1000 --size 160x120 --given-poses   # mapping's cost alone
+    python benchmarks/long_run.py worker --frames 1000 --size 160x120 [--code OLD_CHECKOUT]
 
 memory: the synthetic room (splat_core/synthetic/) at twice the hand-held speed, so the camera orbits the
 room more than once, with the reference poses given (tracking.use_reference_poses) and short
@@ -27,6 +28,12 @@ too (each window's median, `rss_growth_mb_per_frame` from N/10 on as `memory` co
 Accuracy over the run: the ATE of the first k frames at every eighth of it (`ate_first_frames_cm`:
 where a drift starts), frames lost, and frames whose tracking kept the constant-velocity
 prediction (`tracking_start`).
+
+worker: the memory run's capture and settings, run by the viewer's SlamWorker (app/worker.py;
+no server, no live panel): the time its own bookkeeping after each frame takes on the SLAM
+thread (history, ATE, the snapshot the viewer reads: `SlamWorker._after_frame`), median ms over
+frames [N/10, N/5) and over the last tenth, and their ratio: work that grows with the run
+slows SLAM in the viewer however fast tracking is.
 
 Each run is a child process of this script (so RSS is per run); `--code DIR` puts another
 checkout first on its PYTHONPATH, to measure the code before a change in the same session.
@@ -169,9 +176,44 @@ def child_time(args) -> dict:
                 prediction_kept=sum(r.get("tracking_start") == "prediction" for r in records), machine=machine())
 
 
+def child_worker(args) -> dict:
+    from app.worker import SlamWorker
+    from splat_core.config import load_config
+    from splat_core.run import Pipeline
+    from splat_core.synthetic import SyntheticSource
+
+    w, h = args.size
+    cfg = load_config(args.preset, overrides={
+        "resolution": [w, h], "tracking": {"use_reference_poses": True},
+        "mapping": {"iterations": 1, "first_frame_iterations": 20}, "eval_every": 10**9})
+    source = SyntheticSource(n_frames=args.frames, width=w, height=h, speed=SPEED)
+    worker = SlamWorker(Pipeline(source, cfg, None), live_render=False)
+    took = []
+    after_frame = worker._after_frame
+
+    def timed(result):
+        t0 = time.perf_counter()
+        after_frame(result)
+        took.append(time.perf_counter() - t0)
+    worker._after_frame = timed
+    worker.start()
+    worker.join()
+    if worker.error is not None:
+        raise worker.error
+    n = len(took)
+
+    def window(lo, hi):
+        return dict(frames=[lo, hi], ms=round(1e3 * statistics.median(took[lo:hi]), 3))
+    early, late = window(n // 10, n // 5), window(n - n // 10, n)
+    return dict(mode="worker", frames=n, size=f"{w}x{h}", code=args.code or str(ROOT),
+                early=early, late=late, ratio_late_to_early=round(late["ms"] / early["ms"], 3),
+                ms_every_100=[round(1e3 * statistics.median(took[k:k + 10]), 3) for k in range(0, n, 100)],
+                machine=machine())
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("mode", choices=["memory", "time"])
+    p.add_argument("mode", choices=["memory", "time", "worker"])
     p.add_argument("--frames", type=int, default=1000)
     p.add_argument("--size", default="320x240", type=lambda s: tuple(int(v) for v in s.lower().split("x")))
     p.add_argument("--preset", default="cpu")
@@ -182,7 +224,8 @@ def main(argv=None) -> int:
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
-        print(json.dumps((child_memory if args.mode == "memory" else child_time)(args)))
+        child = {"memory": child_memory, "time": child_time, "worker": child_worker}[args.mode]
+        print(json.dumps(child(args)))
         return 0
     env = dict(os.environ, OMP_WAIT_POLICY="PASSIVE")
     code = Path(args.code).resolve() if args.code else ROOT

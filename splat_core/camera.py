@@ -94,6 +94,20 @@ def invert_pose(T: np.ndarray) -> np.ndarray:
     return pose_matrix(R.T, -R.T @ t)
 
 
+def invert_poses(Ts) -> np.ndarray:
+    """invert_pose of n rigid 4x4 transforms of one dtype at once, (n, 4, 4) float64: the same
+    numbers as one invert_pose per transform (computed in their dtype as it does;
+    tests/core/test_camera.py), in one vectorised pass (a viewer asks for a whole trajectory
+    after every frame)."""
+    T = np.asarray(Ts).reshape(-1, 4, 4)
+    Rt = T[:, :3, :3].transpose(0, 2, 1)
+    out = np.zeros(T.shape, np.float64)
+    out[:, :3, :3] = Rt
+    out[:, :3, 3] = ((-Rt) @ T[:, :3, 3, None])[..., 0]      # as invert_pose: (-R^T) t, signed zeros too
+    out[:, 3, 3] = 1.0
+    return out
+
+
 def is_finite_pose(T) -> bool:
     return T is not None and bool(np.all(np.isfinite(T)))
 

@@ -19,7 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import Intrinsics, invert_pose, is_finite_pose
+from ..camera import Intrinsics, invert_pose, invert_poses, is_finite_pose
 from ..config import Config
 from ..errors import InputError
 from ..frame import Frame
@@ -99,6 +99,7 @@ class Pipeline:
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []
+        self._reference_cache: tuple = (None, None, [])  # (references, their first, reference_c2w so far)
         self.started = time.perf_counter()
         self._last_step = None
         self._last_cpu = None                   # the process's CPU time (all threads) at _last_step
@@ -214,7 +215,8 @@ class Pipeline:
         return invert_pose(c2w_ref0) @ c2w_ref
 
     def estimated_c2w(self) -> list[np.ndarray]:
-        return [invert_pose(w) for w in self.engine.trajectory()]
+        trajectory = self.engine.trajectory()
+        return list(invert_poses(trajectory)) if trajectory else []
 
     def has_reference(self) -> bool:
         return any(is_finite_pose(r) for r in self.references)
@@ -223,7 +225,13 @@ class Pipeline:
         """Reference poses in the SLAM world (first frame's camera), or None without any."""
         if not self.has_reference():
             return None
-        return [self._reference_world(r, self.references[0]) for r in self.references]
+        refs = self.references        # appended to after every frame, replaced by a resume
+        cached_refs, cached_first, world = self._reference_cache
+        if cached_refs is not refs or cached_first is not refs[0] or len(world) > len(refs):
+            world = []
+            self._reference_cache = (refs, refs[0], world)
+        world.extend(self._reference_world(r, refs[0]) for r in refs[len(world):])   # only the new ones
+        return list(world)
 
     def ate_cm(self) -> float | None:
         return ate_cm(self.estimated_c2w(), self.reference_c2w())

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from splat_core.camera import (Intrinsics, backproject, invert_pose, pose_matrix, predict_constant_velocity,
+from splat_core.camera import (Intrinsics, backproject, invert_pose, invert_poses, pose_matrix, predict_constant_velocity,
                                project, quat_to_rotmat_np, rotmat_to_quat, scale_motion, se3_exp, se3_log)
 
 
@@ -14,6 +14,25 @@ def test_backprojected_pixel_reprojects_onto_itself():
     uv = project(backproject(depth, intr), intr)
     u, v = np.meshgrid(np.arange(64), np.arange(48))
     assert np.allclose(uv[..., 0], u) and np.allclose(uv[..., 1], v)
+
+
+def test_invert_poses_gives_invert_pose_numbers_exactly():
+    """The batched inverse (a viewer's whole trajectory after every frame) is bit for bit the
+    per-pose one, so trajectory.txt does not change; each dtype, and 1 to 200 poses at a time."""
+    rng = np.random.default_rng(7)
+    for n in (1, 2, 3, 17, 200):
+        q = rng.normal(size=(n, 4))
+        poses = np.stack([pose_matrix(quat_to_rotmat_np(x / np.linalg.norm(x)), rng.normal(size=3) * 5) for x in q])
+        poses[0] = np.eye(4)                           # the first frame's pose: zeros keep their sign
+        for dtype in (np.float64, np.float32):
+            batch = [p.astype(dtype) for p in poses]
+            got = invert_poses(batch)
+            assert got.dtype == np.float64 and got.shape == (n, 4, 4)
+            assert got.tobytes() == np.stack([invert_pose(p) for p in batch]).tobytes()   # -0.0 too
+    assert np.allclose(invert_poses(poses) @ poses, np.eye(4), atol=1e-12)
+    lost = poses[:2].copy()
+    lost[1] = np.nan                                   # a NaN pose stays NaN, as invert_pose's
+    assert np.isnan(invert_poses(lost)[1, :3]).all() and np.isfinite(invert_poses(lost)[0]).all()
 
 
 def test_quaternion_round_trip_and_constant_velocity():

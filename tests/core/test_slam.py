@@ -38,3 +38,36 @@ def test_slam_on_cuda_tracks_like_the_cpu():
         pass
     assert pipe.engine.slam.map.device.type == "cuda"
     assert pipe.ate_cm() < 1.0
+
+
+def test_reference_poses_in_the_slam_world_follow_appends_and_a_resume():
+    """Pipeline.reference_c2w converts only the frames added since it was last asked (a viewer asks
+    after every frame): the same poses as converting them all, also after the list is replaced."""
+    import numpy as np
+
+    from splat_core.camera import pose_matrix, quat_to_rotmat_np
+    from splat_core.run import Pipeline
+    pipe = Pipeline(SyntheticSource(n_frames=4, width=64, height=48, seed=0), load_config("cpu"))
+    rng = np.random.default_rng(3)
+
+    def pose():
+        q = rng.normal(size=4)
+        return pose_matrix(quat_to_rotmat_np(q / np.linalg.norm(q)), rng.normal(size=3))
+
+    def expected():
+        return [pipe._reference_world(r, pipe.references[0]) for r in pipe.references]
+
+    def same(got, want):
+        return len(got) == len(want) and all((a is None and b is None) or np.array_equal(a, b)
+                                             for a, b in zip(got, want))
+
+    assert pipe.reference_c2w() is None
+    pipe.references.extend([pose(), None, pose()])
+    assert same(pipe.reference_c2w(), expected())
+    pipe.references.extend([pose(), pose()])                 # frames tracked since
+    assert same(pipe.reference_c2w(), expected())
+    assert np.allclose(pipe.reference_c2w()[0], np.eye(4))
+    pipe.references = [pose(), pose()]                       # a resume's list
+    assert same(pipe.reference_c2w(), expected())
+    pipe.references[0] = pose()                              # another first frame
+    assert same(pipe.reference_c2w(), expected())
