@@ -1,6 +1,6 @@
 """LivePreview: the live panel's render of the map at the tracked pose, made in its own thread.
 
-    preview = LivePreview(render, interval_s=0.4, duty=0.25)   # render(*what) -> LiveView or None
+    preview = LivePreview(render, interval_s=1.0, duty=0.25)   # render(*what) -> LiveView or None
     preview.offer(*what)                      # the SLAM thread, after every frame: never blocks
     preview.latest()                          # the newest LiveView (None before the first)
     preview.flush()                           # render what is offered now and wait for it (pause, end)
@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 
 
 class LivePreview:
-    def __init__(self, render, interval_s: float = 0.4, duty: float = 0.25):
+    def __init__(self, render, interval_s: float = 1.0, duty: float = 0.25):
         if not 0 < duty <= 1:
             raise ValueError(f"duty must be in (0, 1], got {duty}")
         self.render = render

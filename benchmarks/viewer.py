@@ -10,7 +10,9 @@
 viewer with a browser connected (SlamWorker + build_viewer on the server `splatam-viewer` starts,
 its page scripts included, + headless Chromium on the page, once for each --draw-while-running style), one after the other in this process
 (headless first in even repeats, last in odd ones: --first-repeat numbers them); the median wall-clock
-s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), and the CPU the browser used meanwhile (browser_cpu_cores:
+s/frame of each (frame 0 left out) and their ratio (viewer fps / headless fps), the same with the
+mean s/frame (frames after 0: the waits for the mapper, and the frames that paid for a viewer
+update, included: mean_rate_over_headless), and the CPU the browser used meanwhile (browser_cpu_cores:
 Chromium's CPU seconds per wall-clock second while SLAM ran in the viewer). --before DIR: the same
 measurement of another checkout's app and engine (a child process importing from DIR), each
 repeat right after this checkout's, as `slam_rate_before`. --layers: also SLAM's rate in the
@@ -42,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as splatam-viewer (app/cli.py), before torch
 CODE = os.environ.get("SPLATAM_CODE") or str(Path(__file__).resolve().parent.parent)   # --before's child: DIR
 sys.path.insert(0, CODE)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -257,12 +260,16 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
     def median(records):
         return statistics.median(r["wall_seconds"] for r in records[1:])
 
+    def mean(records):     # frames after 0, the waits for the mapper and the viewer's slower frames included
+        return statistics.fmean(r["wall_seconds"] for r in records[1:])
+
     def run_headless():
         pipe = pipeline()
         while pipe.step() is not None:
             pass
         pipe.finish()
         headless.append(median(pipe.records))
+        headless_means.append(mean(pipe.records))
 
     def layer(with_viewer: bool, live_render: bool = True):
         """SLAM's median s/frame in the worker alone, or in the viewer with no browser."""
@@ -282,8 +289,9 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
         return median(pipe.records)
 
     layer_runs = {"worker, no live panel": [], "worker and live panel": [], "viewer, no browser": []}
-    headless = []
+    headless, headless_means = [], []
     viewer = {style: [] for style in styles}
+    viewer_means = {style: [] for style in styles}
     browser_cpu = {style: [] for style in styles}
     redraw = {style: None for style in styles}      # the page's draw counts (page_shim.py), if it has them
     for repeat in range(first_repeat, first_repeat + repeats):
@@ -308,20 +316,25 @@ def slam_rate(frames: int, engine: str, config: str, repeats: int = 1, map_updat
                     browser_cpu[style].append((browser_cpu_seconds() - cpu0) / (time.monotonic() - t0))
                     redraw[style] = page.evaluate("() => window.__splatamRedraw || null")
                 viewer[style].append(median(pipe.records))
+                viewer_means[style].append(mean(pipe.records))
                 app.close()
             finally:
                 server.stop()
         if repeat % 2 == 1:
             run_headless()
-    h = statistics.median(headless)
+    h, hm = statistics.median(headless), statistics.median(headless_means)
     return dict(frames=frames, engine=engine, config=config, map_updates=map_updates, browser_splats=browser_splats,
                 headless_s_per_frame=round(h, 3), headless_runs=headless,
+                headless_mean_s_per_frame=round(hm, 3), headless_mean_runs=headless_means,
                 viewer=[dict(draw_while_running=style if style in RUNNING_STYLES else f"{style}: unknown, the default",
                              viewer_s_per_frame=round(statistics.median(viewer[style]), 3),
                              viewer_fps_over_headless_fps=round(h / statistics.median(viewer[style]), 3),
+                             viewer_mean_s_per_frame=round(statistics.median(viewer_means[style]), 3),
+                             mean_rate_over_headless=round(hm / statistics.median(viewer_means[style]), 3),
                              browser_cpu_cores=round(statistics.median(browser_cpu[style]), 3),
                              page_redraw=redraw[style],
-                             runs=dict(viewer=viewer[style], browser_cpu_cores=browser_cpu[style]))
+                             runs=dict(viewer=viewer[style], viewer_mean=viewer_means[style],
+                                       browser_cpu_cores=browser_cpu[style]))
                         for style in styles],
                 layers={name: layer_rate(h, runs) for name, runs in layer_runs.items() if runs})
 
@@ -333,19 +346,25 @@ def merged(rates: list[dict]) -> dict:
     first = dict(rates[0])
     heads = [h for r in rates for h in r["headless_runs"]]
     h = statistics.median(heads)
+    head_means = [h for r in rates for h in r.get("headless_mean_runs", [])]    # an older checkout's child: none
+    hm = statistics.median(head_means) if head_means else None
     views = []
     for k, v in enumerate(first["viewer"]):
         runs = [r["viewer"][k]["runs"]["viewer"][0] for r in rates]
+        means = [x for r in rates for x in r["viewer"][k]["runs"].get("viewer_mean", [])]
         cpu = [r["viewer"][k]["runs"]["browser_cpu_cores"][0] for r in rates]
         views.append(dict(draw_while_running=v["draw_while_running"],
                           viewer_s_per_frame=round(statistics.median(runs), 3),
                           viewer_fps_over_headless_fps=round(h / statistics.median(runs), 3),
+                          viewer_mean_s_per_frame=round(statistics.median(means), 3) if means else None,
+                          mean_rate_over_headless=round(hm / statistics.median(means), 3) if means and hm else None,
                           browser_cpu_cores=round(statistics.median(cpu), 3),
                           page_redraw=[r["viewer"][k].get("page_redraw") for r in rates],
-                          runs=dict(viewer=runs, browser_cpu_cores=cpu)))
+                          runs=dict(viewer=runs, viewer_mean=means, browser_cpu_cores=cpu)))
     layers = {name: layer_rate(h, [x for r in rates for x in r["layers"][name]["runs"]])
               for name in first.get("layers", {})}
-    first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views, layers=layers)
+    first.update(headless_s_per_frame=round(h, 3), headless_runs=heads, viewer=views, layers=layers,
+                 headless_mean_s_per_frame=None if hm is None else round(hm, 3), headless_mean_runs=head_means)
     return first
 
 

@@ -7,8 +7,8 @@
 `source` is anything with `latest() -> MapSnapshot | None`: the SlamWorker (which also has
 pause / resume / step_once) or a StaticSource for browsing a finished run. The viewer reads it
 through a SnapshotFeed (feed.py), which puts a refined map in once there is one. One
-viewer-update thread pulls the latest snapshot at <= 2 Hz and pushes changes to viser (map
-chunks, frustums, trajectories, status, plots, live images). One render thread (RenderService)
+viewer-update thread pulls the latest snapshot at <= 2 Hz (<= 1 Hz while SLAM runs) and pushes
+changes to viser (map chunks, frustums, trajectories, status, plots, live images). One render thread (RenderService)
 serves the novel-view mode of every client and the keyframe panels, each slot latest-request-only.
 
 Every page gets the shared panels and its own Keyframes panel and novel view (scrub.py); pages
@@ -63,7 +63,8 @@ class StaticSource:
 
 class ViewerApp:
     def __init__(self, server: viser.ViserServer, source, *, export_dir: Path | None = None,
-                 render_backend: str = "auto", update_hz: float = 2.0, assets: WebAssets | None = None,
+                 render_backend: str = "auto", update_hz: float = 2.0, running_update_hz: float = 1.0,
+                 assets: WebAssets | None = None,
                  novel_full_width: int = 480, novel_low_width: int = 128, scrub_width: int = 320,
                  consolidate_every: int = 5, consolidate_interval_s: float = 10.0,
                  map_updates: str = "keyframes", browser_splats: int | None = None,
@@ -78,6 +79,11 @@ class ViewerApp:
         self.export_dir = Path(export_dir) if export_dir else None
         self.render_backend = render_backend
         self.update_period = 1.0 / update_hz
+        # While SLAM runs, the page's panels follow once a second: each update is tens of viser
+        # messages that the server sends and the page handles on the cores SLAM uses (at 2 Hz
+        # SLAM's frames took ~7 ms longer with a software-WebGL page, 2.5 ms with no page; Viewer
+        # in docs/benchmarks.md). A button press still shows at once (wake()).
+        self.running_update_period = max(self.update_period, 1.0 / running_update_hz)
         self.novel_full_width, self.novel_low_width = novel_full_width, novel_low_width
         self.assets = assets or load_assets()
         self.has_controls = self.controls is not None
@@ -214,8 +220,13 @@ class ViewerApp:
                 self.update_once()
             except Exception:
                 log.exception("viewer update failed")
-            self._wake.wait(self.update_period)
+            self._wake.wait(self.next_wait())
             self._wake.clear()
+
+    def next_wait(self) -> float:
+        """Seconds to the next update unless woken: longer while the snapshot shown is of SLAM running."""
+        running = self._snapshot is not None and self._snapshot.state == "running"
+        return self.running_update_period if running else self.update_period
 
     def update_once(self) -> bool:
         """Apply the latest snapshot if it is new; returns True when something changed."""

@@ -156,7 +156,8 @@ def test_viewer_builds_chunks_scrubs_and_exports(server, tmp_path):
 
     pipe = FakePipeline(total=6, per_frame=50)
     w = SlamWorker(pipe, live_render=False)
-    app = build_viewer(server, w, export_dir=tmp_path, render_backend="reference", update_hz=20)
+    app = build_viewer(server, w, export_dir=tmp_path, render_backend="reference", update_hz=20,
+                       running_update_hz=20)
     try:
         w.start()
         w.wait_for(lambda s: s.state == "finished", 60)
@@ -301,6 +302,42 @@ def test_the_camera_layer_follows_the_map_update_policy(server):
         assert np.allclose(apply(snap(10, (0, 3, 5), 0.6, "paused")), [0.6, 0, 0])
     finally:
         app.close()
+
+
+def test_the_panels_follow_a_running_slam_once_a_second(server):
+    """While SLAM runs the viewer applies snapshots at running_update_hz (each update is tens of
+    messages to every page on SLAM's cores), at update_hz once it pauses or ends or while browsing."""
+    from app.snapshot import MapSnapshot
+    from app.viewer import build_viewer
+
+    class Source:
+        snap = None
+
+        def latest(self):
+            return self.snap
+
+    m = blob_map(50, 0).to_numpy()
+    source = Source()
+    app = build_viewer(server, source)                          # update_hz 2, running_update_hz 1
+    try:
+        assert app.next_wait() == 0.5                           # nothing shown yet
+        apply_snapshot(app, source, MapSnapshot(1, "running", 0, 20, 1, m, ()))
+        assert app.next_wait() == 1.0
+        apply_snapshot(app, source, MapSnapshot(2, "paused", 1, 20, 1, m, ()))
+        assert app.next_wait() == 0.5
+        apply_snapshot(app, source, MapSnapshot(3, "running", 2, 20, 1, m, ()))
+        assert app.next_wait() == 1.0
+        apply_snapshot(app, source, MapSnapshot(4, "finished", 3, 20, 1, m, ()))
+        assert app.next_wait() == 0.5
+    finally:
+        app.close()
+    fast = build_viewer(server, source, update_hz=20, running_update_hz=20)   # never slower than update_hz
+    try:
+        assert fast.next_wait() == 0.05
+        apply_snapshot(fast, source, MapSnapshot(5, "running", 4, 20, 1, m, ()))
+        assert fast.next_wait() == 0.05
+    finally:
+        fast.close()
 
 
 def test_browser_budget_thins_the_map_while_slam_runs(server):

@@ -77,7 +77,7 @@ def test_export_panel_exports_every_format_while_slam_runs(server, tmp_path):
 
     pipe = FakePipeline(total=100_000, per_frame=5, frame_seconds=0.02)   # runs until stopped
     worker = SlamWorker(pipe, live_render=False)
-    app = build_viewer(server, worker, export_dir=tmp_path, render_backend="cpu", update_hz=20)
+    app = build_viewer(server, worker, export_dir=tmp_path, render_backend="cpu", update_hz=20, running_update_hz=20)
     try:
         worker.start()
         assert worker.wait_for(lambda s: s.num_gaussians >= 100, 60)

@@ -59,7 +59,7 @@ def served(tmp_path_factory):
     server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
     worker = SlamWorker(GreyFramePipeline(total=5, per_frame=1000, keyframe_every=2, out_dir=out),
                         live_render=True, render_backend="reference", live_max_width=40, live_interval_s=0.0)
-    app = build_viewer(server, worker, export_dir=out, render_backend="reference", update_hz=10, scrub_width=64,
+    app = build_viewer(server, worker, export_dir=out, render_backend="reference", update_hz=10, running_update_hz=10, scrub_width=64,
                        novel_full_width=64, novel_low_width=32)
     worker.start()
     wait_until(lambda: app.applied is not None and app.applied.state == "finished", 60, what="run end")
