@@ -21,7 +21,7 @@ from splat_core.metrics import psnr
 from splat_core.run.report import ate_cm
 
 from .live_preview import LivePreview
-from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, VersionArrays,
+from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, Series, VersionArrays,
                        empty_gaussians, freeze_gaussians, frozen, make_thumbnail)
 
 log = logging.getLogger(__name__)
@@ -36,9 +36,9 @@ class SlamWorker(threading.Thread):
     at most `live_max_width` pixels wide (the panel's tile width: the PSNR beside it is of that
     size too), in a LivePreview thread: at most every `live_interval_s`
     and at most `live_duty` of one core (the viewer shows one update a second while SLAM runs,
-    app/viewer/app.py; a render per frame, or one in the SLAM thread, would only slow SLAM down). Between those the panel keeps
-    the last rendered frame, so image and render always belong together; a pause and the run's
-    end show the last frame's render.
+    app/viewer/app.py; a render per frame, or one in the SLAM thread, would only slow SLAM
+    down). Between those the panel keeps the last rendered frame, so image and render always
+    belong together; a pause and the run's end show the last frame's render.
     prepare: called as `prepare(report)` in the thread before the first frame (the viewer compiles
     the CPU kernels there on a first run: app.warmup.KernelCompile.run); `report(text)` publishes
     `text` as the snapshot's message, which the page shows while there is no map.
@@ -75,8 +75,8 @@ class SlamWorker(threading.Thread):
         self._map_copied_at = -1e9
         self._keyframe_views: dict[int, tuple] = {}     # frame -> (w2c it was made at, KeyframeView)
         self._keyframes_seen: tuple | None = None       # (frames, w2cs, views) of the last _keyframes()
-        self._history = {k: [] for k in HISTORY_KEYS}
-        self._timestamps: list[float] = []
+        self._history = {k: Series() for k in HISTORY_KEYS}
+        self._timestamps = Series()
         self._live: LiveView | None = None
         self._last_frame_index = -1
         self._publish(force_map=True)
@@ -195,7 +195,7 @@ class SlamWorker(threading.Thread):
         self._last_frame_index = int(r.index)
         self._timestamps.append(float(r.timestamp))
         seconds = float(pipe.records[-1]["wall_seconds"])
-        poses = pipe.estimated_c2w(), pipe.reference_c2w()     # once a frame: O(frames) each
+        poses = pipe.estimated_c2w_array(), pipe.reference_c2w_array()   # each pose converted once
         ate = ate_cm(*poses)
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
                            ("seconds", seconds), ("psnr", None), ("num_gaussians", r.num_gaussians)):
@@ -265,7 +265,7 @@ class SlamWorker(threading.Thread):
         return tuple(getattr(version, "loops", ()) or ())
 
     def _publish(self, force_map: bool = False, message: str = "", poses: tuple | None = None) -> None:
-        """`poses`: (estimated_c2w, reference_c2w) when the caller has them already."""
+        """`poses`: the pipeline's (estimated_c2w_array, reference_c2w_array) when the caller has them."""
         pipe = self.pipeline
         now = time.monotonic()
         if force_map or now - self._map_copied_at >= self.map_interval_s:
@@ -273,13 +273,11 @@ class SlamWorker(threading.Thread):
             self._map_version += 1
             self._map_copied_at = now
         if poses is None:
-            poses = (pipe.estimated_c2w(), pipe.reference_c2w()) if self._last_frame_index >= 0 else ([], [])
+            poses = ((pipe.estimated_c2w_array(), pipe.reference_c2w_array()) if self._last_frame_index >= 0
+                     else (np.zeros((0, 4, 4)), None))
         est, ref = poses
-        reference = None
-        if ref and any(p is not None for p in ref):
-            reference = np.stack([np.full((4, 4), np.nan) if p is None else np.asarray(p, np.float64)
-                                  for p in ref])
-        history = {k: frozen(np.asarray(v, np.float64)) for k, v in self._history.items()}
+        reference = ref if ref is not None and len(ref) and np.isfinite(ref).any() else None
+        history = {k: v.frozen() for k, v in self._history.items()}
         secs = history["seconds"]
         ate = history["ate_cm"]
         with self._cond:
@@ -289,8 +287,7 @@ class SlamWorker(threading.Thread):
                 total_frames=int(pipe.total or len(pipe.records)), map_version=self._map_version,
                 gaussians=self._map_arrays,
                 keyframes=self._keyframes(), intrinsics=pipe.intrinsics, near_plane=float(pipe.config.near_plane),
-                timestamps=frozen(np.asarray(self._timestamps, np.float64)),
-                estimated_c2w=frozen(np.stack(est) if len(est) else np.zeros((0, 4, 4))),
+                timestamps=self._timestamps.frozen(), estimated_c2w=frozen(est),
                 reference_c2w=frozen(reference), history=history, live=self._live,
                 seconds_per_frame=float(np.nanmean(secs[-10:])) if len(secs) else None,
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,

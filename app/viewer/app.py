@@ -8,8 +8,9 @@
 pause / resume / step_once) or a StaticSource for browsing a finished run. The viewer reads it
 through a SnapshotFeed (feed.py), which puts a refined map in once there is one. One
 viewer-update thread pulls the latest snapshot at <= 2 Hz (<= 1 Hz while SLAM runs) and pushes
-changes to viser (map chunks, frustums, trajectories, status, plots, live images). One render thread (RenderService)
-serves the novel-view mode of every client and the keyframe panels, each slot latest-request-only.
+changes to viser (map chunks, frustums, trajectories, status, plots, live images). One render
+thread (RenderService) serves the novel-view mode of every client and the keyframe panels, each
+slot latest-request-only.
 
 Every page gets the shared panels and its own Keyframes panel and novel view (scrub.py); pages
 whose visitor may control the run (access.py: all of them unless tokens say otherwise) also get

@@ -19,8 +19,8 @@ millimetre-sized Gaussians representable.
 While SLAM runs, `policy` says when the browser's 3D scene follows it (`follows`): "keyframes"
 (the default) sends a keyframe's chunk, the tail and any due consolidation when a keyframe
 arrives, and nothing between keyframes; "continuous" also re-sends the tail with every new
-snapshot (at most the viewer's update rate); "off" sends nothing until the run pauses or ends. The viewer holds
-the camera layer (current camera, trajectories, keyframe frustums) to the same policy: each
+snapshot (at most the viewer's update rate); "off" sends nothing until the run pauses or ends.
+The viewer holds the camera layer (current camera, trajectories, keyframe frustums) to the same policy: each
 scene message makes viser's page draw frames for 250 ms, which a browser that draws WebGL in
 software pays for on the cores SLAM uses (docs/viewer-notes.md §3; figures: docs/benchmarks.md, Viewer).
 

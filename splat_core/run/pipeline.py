@@ -19,7 +19,7 @@ from typing import Protocol
 
 import numpy as np
 
-from ..camera import Intrinsics, invert_pose, invert_poses, is_finite_pose
+from ..camera import Intrinsics, invert_pose, is_finite_pose
 from ..config import Config
 from ..errors import InputError
 from ..frame import Frame
@@ -32,6 +32,7 @@ from .engines import ENGINES, make_engine
 from .frame_feed import FrameFeed, input_record, resolve_device
 from .report import ate_cm, evaluate, summary
 from .resolution import source_working_size
+from .pose_arrays import InverseTrajectory, ReferenceWorld
 from .run_folder import RunFolder
 
 RELEASE_MEMORY_EVERY = 10      # frames between returns of freed heap memory to the system (memory.py)
@@ -62,7 +63,9 @@ class SlamRun(Protocol):
 
     def keyframes(self) -> list[Keyframe]: ...
     def estimated_c2w(self) -> list[np.ndarray]: ...
+    def estimated_c2w_array(self) -> np.ndarray: ...
     def reference_c2w(self) -> list[np.ndarray | None] | None: ...
+    def reference_c2w_array(self) -> np.ndarray | None: ...
     def ate_cm(self) -> float | None: ...
 
 
@@ -99,7 +102,7 @@ class Pipeline:
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
         self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []
-        self._reference_cache: tuple = (None, None, [])  # (references, their first, reference_c2w so far)
+        self._inverses, self._reference_world_poses = InverseTrajectory(), ReferenceWorld()   # each pose once
         self.started = time.perf_counter()
         self._last_step = None
         self._last_cpu = None                   # the process's CPU time (all threads) at _last_step
@@ -215,8 +218,11 @@ class Pipeline:
         return invert_pose(c2w_ref0) @ c2w_ref
 
     def estimated_c2w(self) -> list[np.ndarray]:
-        trajectory = self.engine.trajectory()
-        return list(invert_poses(trajectory)) if trajectory else []
+        return list(self.estimated_c2w_array())
+
+    def estimated_c2w_array(self) -> np.ndarray:
+        """estimated_c2w as one (n, 4, 4) array (a new one each call; only new or moved poses inverted)."""
+        return self._inverses(self.engine.trajectory())
 
     def has_reference(self) -> bool:
         return any(is_finite_pose(r) for r in self.references)
@@ -225,16 +231,18 @@ class Pipeline:
         """Reference poses in the SLAM world (first frame's camera), or None without any."""
         if not self.has_reference():
             return None
-        refs = self.references        # appended to after every frame, replaced by a resume
-        cached_refs, cached_first, world = self._reference_cache
-        if cached_refs is not refs or cached_first is not refs[0] or len(world) > len(refs):
-            world = []
-            self._reference_cache = (refs, refs[0], world)
-        world.extend(self._reference_world(r, refs[0]) for r in refs[len(world):])   # only the new ones
-        return list(world)
+        self._reference_world_poses.update(self.references, self._reference_world)   # the new frames only
+        return list(self._reference_world_poses.poses)
+
+    def reference_c2w_array(self) -> np.ndarray | None:
+        """reference_c2w as one (n, 4, 4) array, NaN rows where a frame has none (a new one each call)."""
+        if not self.has_reference():
+            return None
+        self._reference_world_poses.update(self.references, self._reference_world)
+        return self._reference_world_poses.rows.copy()
 
     def ate_cm(self) -> float | None:
-        return ate_cm(self.estimated_c2w(), self.reference_c2w())
+        return ate_cm(self.estimated_c2w_array(), self.reference_c2w_array())
 
     # ------------------------------------------------------------------ checkpoints
     def _meta(self, frames: int | None = None) -> dict:

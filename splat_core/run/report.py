@@ -13,15 +13,16 @@ from .. import metrics as M
 from ..camera import invert_pose, is_finite_pose
 
 
-def ate_cm(estimated_c2w, reference_c2w) -> float | None:
-    """ATE RMSE in cm over the frames with a reference pose (None: fewer than two)."""
+def ate_cm(estimated_c2w: np.ndarray, reference_c2w: np.ndarray | None) -> float | None:
+    """ATE RMSE in cm over the frames with a reference pose (None: fewer than two); both (n, 4, 4)
+    arrays (Pipeline.estimated_c2w_array, reference_c2w_array: NaN rows where a frame has none)."""
     if reference_c2w is None:
         return None
-    pairs = [(e, r) for e, r in zip(estimated_c2w, reference_c2w) if r is not None]
-    if len(pairs) < 2:
+    n = min(len(estimated_c2w), len(reference_c2w))
+    keep = np.flatnonzero(np.isfinite(reference_c2w[:n]).all(axis=(1, 2)))
+    if len(keep) < 2:
         return None
-    est, ref = zip(*pairs)
-    return 100.0 * float(M.ate_rmse(np.array(est), np.array(ref)))
+    return 100.0 * float(M.ate_rmse(estimated_c2w[keep], reference_c2w[keep]))
 
 
 def evaluate(render, w2cs: list, records: list[dict], frame_of, eval_every: int) -> dict:

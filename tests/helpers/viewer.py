@@ -124,6 +124,13 @@ class FakePipeline:
             out.append(c2w)
         return out
 
+    def estimated_c2w_array(self):
+        return np.array(self.estimated_c2w()).reshape(-1, 4, 4)
+
+    def reference_c2w_array(self):
+        ref = self.reference_c2w()
+        return None if ref is None else np.array(ref).reshape(-1, 4, 4)
+
     def ate_cm(self):
         return 2.0 * len(self.w2cs) if self.with_reference and len(self.w2cs) > 1 else None
 
