@@ -48,33 +48,6 @@ def frozen(a):
     return a
 
 
-class Series:
-    """A float64 series appended to once a frame (the worker's history): amortised O(1) an
-    append, entries settable (a PSNR arrives after its frame), `frozen()` a read-only copy."""
-
-    def __init__(self):
-        self._buf = np.zeros(16)
-        self._n = 0
-
-    def append(self, value: float) -> None:
-        if self._n == len(self._buf):
-            self._buf = np.concatenate([self._buf, np.zeros(len(self._buf))])
-        self._buf[self._n] = value
-        self._n += 1
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, k: int) -> float:
-        return float(self._buf[:self._n][k])
-
-    def __setitem__(self, k: int, value: float) -> None:
-        self._buf[:self._n][k] = value
-
-    def frozen(self) -> np.ndarray:
-        return frozen(self._buf[:self._n])
-
-
 @dataclass(frozen=True)
 class KeyframeView:
     """One keyframe as the viewer shows it: pose, a small thumbnail and the captured images.

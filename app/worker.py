@@ -18,10 +18,11 @@ import traceback
 import numpy as np
 
 from splat_core.metrics import psnr
+from splat_core.run.pose_arrays import GrowingArray
 from splat_core.run.report import ate_cm
 
 from .live_preview import LivePreview
-from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, Series, VersionArrays,
+from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, VersionArrays,
                        empty_gaussians, freeze_gaussians, frozen, make_thumbnail)
 
 log = logging.getLogger(__name__)
@@ -75,8 +76,8 @@ class SlamWorker(threading.Thread):
         self._map_copied_at = -1e9
         self._keyframe_views: dict[int, tuple] = {}     # frame -> (w2c it was made at, KeyframeView)
         self._keyframes_seen: tuple | None = None       # (frames, w2cs, views) of the last _keyframes()
-        self._history = {k: Series() for k in HISTORY_KEYS}
-        self._timestamps = Series()
+        self._history = {k: GrowingArray(()) for k in HISTORY_KEYS}   # one entry a frame
+        self._timestamps = GrowingArray(())
         self._live: LiveView | None = None
         self._last_frame_index = -1
         self._publish(force_map=True)
@@ -183,12 +184,9 @@ class SlamWorker(threading.Thread):
         if live is None or live is self._live:
             return
         self._live = live
-        frames, values = self._history["frame"], self._history["psnr"]
-        if live.psnr is not None:
-            for k in range(len(frames) - 1, -1, -1):
-                if frames[k] == live.frame_index:
-                    values[k] = float(live.psnr)
-                    break
+        at = np.flatnonzero(self._history["frame"].view() == live.frame_index)
+        if live.psnr is not None and len(at):
+            self._history["psnr"].view()[at[-1]] = float(live.psnr)
 
     def _after_frame(self, r) -> None:
         pipe = self.pipeline
@@ -277,7 +275,7 @@ class SlamWorker(threading.Thread):
                      else (np.zeros((0, 4, 4)), None))
         est, ref = poses
         reference = ref if ref is not None and len(ref) and np.isfinite(ref).any() else None
-        history = {k: v.frozen() for k, v in self._history.items()}
+        history = {k: frozen(v.view()) for k, v in self._history.items()}
         secs = history["seconds"]
         ate = history["ate_cm"]
         with self._cond:
@@ -287,7 +285,7 @@ class SlamWorker(threading.Thread):
                 total_frames=int(pipe.total or len(pipe.records)), map_version=self._map_version,
                 gaussians=self._map_arrays,
                 keyframes=self._keyframes(), intrinsics=pipe.intrinsics, near_plane=float(pipe.config.near_plane),
-                timestamps=self._timestamps.frozen(), estimated_c2w=frozen(est),
+                timestamps=frozen(self._timestamps.view()), estimated_c2w=frozen(est),
                 reference_c2w=frozen(reference), history=history, live=self._live,
                 seconds_per_frame=float(np.nanmean(secs[-10:])) if len(secs) else None,
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,

@@ -20,20 +20,25 @@ import numpy as np
 from ..camera import invert_poses
 
 
-class GrowingPoses:
-    """An (n, 4, 4) float64 array whose length changes at its end; capacity doubles, so a row
-    costs amortised O(1)."""
+class GrowingArray:
+    """An array of rows of one shape ((4, 4) poses by default, () for a series of numbers) whose
+    length changes at its end; capacity doubles, so a row costs amortised O(1). `view()` is the
+    filled part (rows settable), `copy()` a copy of it."""
 
-    def __init__(self):
-        self._buf = np.zeros((0, 4, 4))
+    def __init__(self, row_shape: tuple = (4, 4)):
+        self._buf = np.zeros((0, *row_shape))
         self.n = 0
 
     def resize(self, n: int) -> None:
         if n > len(self._buf):
-            grown = np.zeros((max(n, 2 * len(self._buf), 16), 4, 4))
+            grown = np.zeros((max(n, 2 * len(self._buf), 16), *self._buf.shape[1:]))
             grown[:self.n] = self._buf[:self.n]
             self._buf = grown
         self.n = n
+
+    def append(self, row) -> None:
+        self.resize(self.n + 1)
+        self._buf[self.n - 1] = row
 
     def view(self) -> np.ndarray:
         return self._buf[:self.n]
@@ -51,7 +56,7 @@ class InverseTrajectory:
 
     def __init__(self):
         self._seen: list = []
-        self._out = GrowingPoses()
+        self._out = GrowingArray()
 
     def __call__(self, poses: list) -> np.ndarray:
         n, m = len(poses), min(len(poses), len(self._seen))
@@ -73,7 +78,7 @@ class ReferenceWorld:
     def __init__(self):
         self._refs = self._first = None
         self.poses: list = []
-        self.rows = GrowingPoses()
+        self.rows = GrowingArray()
 
     def update(self, references: list, convert) -> None:
         if self._refs is not references or self._first is not references[0] or len(self.poses) > len(references):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from splat_core.camera import invert_pose, pose_matrix, quat_to_rotmat_np
-from splat_core.run.pose_arrays import GrowingPoses, InverseTrajectory
+from splat_core.run.pose_arrays import GrowingArray, InverseTrajectory
 
 
 def random_pose(rng) -> np.ndarray:
@@ -43,10 +43,26 @@ def test_inverses_follow_appends_replacements_removals_and_a_new_list():
 
 
 def test_growing_poses_keep_their_rows_when_they_grow():
-    g = GrowingPoses()
+    g = GrowingArray()
     g.resize(3)
     g.view()[:] = np.arange(3)[:, None, None]
     g.resize(100)
     assert len(g.view()) == 100 and (g.view()[:3, 0, 0] == [0, 1, 2]).all()
     g.resize(2)
     assert g.copy().shape == (2, 4, 4)
+
+
+def test_history_series_grow_and_publish_read_only_copies():
+    """The viewer worker's history (app/worker.py): a series appended once a frame, an entry set
+    later (a PSNR arriving after its frame), published as read-only copies (app.snapshot.frozen)."""
+    from app.snapshot import frozen
+
+    s = GrowingArray(())
+    for k in range(40):                        # past its first capacity
+        s.append(float(k))
+    first = frozen(s.view())
+    s.view()[len(s.view()) - 1] = -1.0         # a PSNR arriving after its frame
+    s.append(np.nan)
+    assert len(s.view()) == 41 and s.view()[39] == -1.0 and np.isnan(frozen(s.view())[-1])
+    assert first[39] == 39.0 and not first.flags.writeable      # what was published stays as it was
+    assert (frozen(s.view())[:39] == np.arange(39)).all()

@@ -51,20 +51,6 @@ def test_worker_publishes_immutable_snapshots(tmp_path):
     assert len(read_ply(tmp_path / "map.ply")["means"]) == 100
 
 
-def test_history_series_grow_and_publish_read_only_copies():
-    from app.snapshot import Series
-
-    s = Series()
-    for k in range(40):                        # past its first capacity
-        s.append(float(k))
-    first = s.frozen()
-    s[len(s) - 1] = -1.0                       # a PSNR arriving after its frame
-    s.append(np.nan)
-    assert len(s) == 41 and s[39] == -1.0 and np.isnan(s.frozen()[-1])
-    assert first[39] == 39.0 and not first.flags.writeable      # what was published stays as it was
-    assert (s.frozen()[:39] == np.arange(39)).all()
-
-
 def test_worker_pause_step_resume_stop():
     pipe = FakePipeline(total=200, per_frame=5, frame_seconds=0.02)
     w = SlamWorker(pipe, live_render=False, start_paused=True)
