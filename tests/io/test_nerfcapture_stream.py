@@ -191,21 +191,24 @@ def test_ctrl_c_ends_a_capture_and_keeps_what_arrived(tmp_path):
 
 @dds
 def test_live_run_on_the_stream_tracks_it(tmp_path, monkeypatch, capsys):
-    # The publisher sends the next frame when SLAM asks for one, as a phone that SLAM keeps up
-    # with (falling behind is tested without DDS above).
-    asked, next_frame = threading.Event(), NeRFCaptureStream.next_frame
+    # The publisher sends the next frame once SLAM has taken the one before, as a phone that SLAM
+    # keeps up with (falling behind is tested without DDS above). Gated on the frame taken, not on
+    # SLAM asking: a message still in transit when SLAM asked again was replaced by the next one
+    # under load (a dropped frame).
+    taken, next_frame = threading.Event(), NeRFCaptureStream.next_frame
 
     def counted(self, timeout=None):
-        asked.set()
-        return next_frame(self, timeout)
+        frame = next_frame(self, timeout)
+        taken.set()
+        return frame
     monkeypatch.setattr(NeRFCaptureStream, "next_frame", counted)
     fields_list, _ = pub.messages(10)
     (tmp_path / "small.yaml").write_text(TINY)
     out = tmp_path / "run"
-    publisher = pub.play(fields_list, nerfcapture_dds.TYPE_NAMES[:1], gate=asked)
+    publisher = pub.play(fields_list, nerfcapture_dds.TYPE_NAMES[:1], gate=taken)
     code = splatam_main(["run", "--input", "nerfcapture://", "--out", str(out), "--config",
                          str(tmp_path / "small.yaml"), "--max-frames", "8", "--idle-timeout", "120", "--quiet"])
-    asked.set()
+    taken.set()
     publisher.join(30)
     assert code == 0, capsys.readouterr().err
     metrics = json.loads((out / "metrics.json").read_text())
