@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
-import os
 import sys
 
-# Torch and Numba each bring an OpenMP runtime; busy-waiting threads of one slow the other.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# Torch and Numba each bring an OpenMP runtime: how their idle threads wait, before torch loads.
+from splat_core.openmp_env import openmp_defaults
 
-from splat_core.errors import InputError
+openmp_defaults()
+
+from splat_core.errors import InputError  # noqa: E402
 
 SUBCOMMANDS = {
     "run": ("app.commands.run", "run SLAM headless on a capture and write a run folder"),

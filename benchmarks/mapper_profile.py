@@ -29,7 +29,8 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as the CLI: idle OpenMP threads sleep (before torch)
+from splat_core.openmp_env import openmp_defaults  # noqa: E402
+openmp_defaults()   # as the CLI, before torch: how idle OpenMP threads wait
 
 import numpy as np  # noqa: E402
 
@@ -232,6 +233,8 @@ def main() -> None:
                         "parts' thread time. Run with OMP_NUM_THREADS=1 NUMBA_NUM_THREADS=1: kernels then run in "
                         "the calling thread, and a loaded machine's waits are left out")
     p.add_argument("--threads", default=None, help="comma-separated thread counts to replay under (torch and Numba)")
+    p.add_argument("--torch-threads", type=int, default=None,
+                   help="torch's intra-op threads in the replays (default: as --threads; Numba keeps --threads)")
     args = p.parse_args()
     import numba
     import torch
@@ -257,7 +260,7 @@ def main() -> None:
         print(f"| {label} | {len(values)} | {np.median(values) * 1e3:.0f} | {np.mean(values) * 1e3:.0f} | "
               f"{np.sum(values):.1f} |")
     for n_threads in threads:
-        torch.set_num_threads(n_threads)
+        torch.set_num_threads(args.torch_threads or n_threads)
         numba.set_num_threads(min(n_threads, numba.config.NUMBA_NUM_THREADS))
         for it in iters:
             runs, stats = replay(call, it, args.repeats)

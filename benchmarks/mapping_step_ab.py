@@ -26,7 +26,8 @@ import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as the CLI (before torch)
+from splat_core.openmp_env import openmp_defaults  # noqa: E402
+openmp_defaults()   # as the CLI, before torch: how idle OpenMP threads wait
 
 import numpy as np  # noqa: E402
 

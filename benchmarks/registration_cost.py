@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -28,7 +27,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as the CLI: idle OpenMP threads sleep, not spin (before torch)
+from splat_core.openmp_env import openmp_defaults  # noqa: E402
+openmp_defaults()   # as the CLI, before torch: how idle OpenMP threads wait
 
 from common import DATA, machine_line  # noqa: E402
 

@@ -15,11 +15,8 @@ Prints only; writes nothing.
 
 from __future__ import annotations
 
-import os
-
-# Torch and Numba each bring an OpenMP runtime; spinning idle threads of one steal the cores of
-# the other. Must be set before either is imported.
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+from splat_core.openmp_env import openmp_defaults  # noqa: E402
+openmp_defaults()   # as the CLI, before torch: how idle OpenMP threads wait
 
 import argparse  # noqa: E402
 import statistics  # noqa: E402

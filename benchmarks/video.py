@@ -11,9 +11,8 @@ repeats; the per-repeat values are listed too. Prints JSON.
 
 from __future__ import annotations
 
-import os
-
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # before torch / numba (see benchmarks/render.py)
+from splat_core.openmp_env import openmp_defaults  # noqa: E402
+openmp_defaults()   # as the CLI, before torch: how idle OpenMP threads wait
 
 import argparse  # noqa: E402
 import json  # noqa: E402

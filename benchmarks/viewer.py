@@ -44,7 +44,10 @@ from pathlib import Path
 
 import numpy as np
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")   # as splatam-viewer (app/cli.py), before torch
+# As splatam-viewer, before torch (splat_core/openmp_env.py; not imported from here: --before's
+# child imports DIR's splat_core, which may not have it).
+if "OMP_WAIT_POLICY" not in os.environ and "GOMP_SPINCOUNT" not in os.environ:
+    os.environ.update(OMP_WAIT_POLICY="PASSIVE", GOMP_SPINCOUNT="10000")
 CODE = os.environ.get("SPLATAM_CODE") or str(Path(__file__).resolve().parent.parent)   # --before's child: DIR
 sys.path.insert(0, CODE)
 sys.path.insert(0, str(Path(__file__).resolve().parent))
