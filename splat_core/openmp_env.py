@@ -11,7 +11,7 @@ or sleeps:
 - GOMP_SPINCOUNT=10000 on top of it: it spins ~0.2 ms first (libgomp's unit is one `pause` loop:
   ~15 ns there), long enough to bridge the gaps inside an iteration, short enough that a thread
   left idle sleeps almost at once. A mapping iteration on two cores took 10 % less time than with
-  PASSIVE alone, and the sequential engine's frames 6-10 % less, outputs the same bit for bit
+  PASSIVE alone, and the sequential engine's frames 4-10 % less, outputs the same bit for bit
   (docs/benchmarks.md, "OpenMP workers").
 
 Where one process runs more OpenMP threads than there are cores (the live engine: the tracker's
