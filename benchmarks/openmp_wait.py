@@ -23,7 +23,7 @@ import threading
 import time
 from pathlib import Path
 
-from splat_core.openmp_env import openmp_defaults  # noqa: E402
+from splat_core.openmp_env import openmp_defaults
 
 openmp_defaults()   # as the CLI, before numba loads its runtime
 

@@ -229,17 +229,21 @@ class Pipeline:
 
     def reference_c2w(self) -> list[np.ndarray | None] | None:
         """Reference poses in the SLAM world (first frame's camera), or None without any."""
-        if not self.has_reference():
-            return None
-        self._reference_world_poses.update(self.references, self._reference_world)   # the new frames only
-        return list(self._reference_world_poses.poses)
+        world = self._world_references()
+        return None if world is None else list(world.poses)
 
     def reference_c2w_array(self) -> np.ndarray | None:
         """reference_c2w as one (n, 4, 4) array, NaN rows where a frame has none (a new one each call)."""
+        world = self._world_references()
+        return None if world is None else world.rows.copy()
+
+    def _world_references(self) -> ReferenceWorld | None:
+        """The reference poses in the SLAM world, the frames added since the last call converted
+        (None without any)."""
         if not self.has_reference():
             return None
         self._reference_world_poses.update(self.references, self._reference_world)
-        return self._reference_world_poses.rows.copy()
+        return self._reference_world_poses
 
     def ate_cm(self) -> float | None:
         return ate_cm(self.estimated_c2w_array(), self.reference_c2w_array())
