@@ -39,11 +39,12 @@ HISTORY_KEYS = ("frame", "tracking_loss", "ate_cm", "seconds", "psnr", "num_gaus
 LIVE_TILE_WIDTH = 200
 
 
-def frozen(a):
-    """A read-only numpy array (copied unless already a private read-only array)."""
+def frozen(a, copy: bool = True):
+    """A read-only numpy array: a copy of `a`, or with copy=False `a` itself made read-only (an array
+    the caller made for this and holds no other reference to)."""
     if a is None:
         return None
-    a = np.array(a, copy=True)
+    a = np.array(a, copy=True) if copy else a
     a.setflags(write=False)
     return a
 

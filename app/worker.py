@@ -11,15 +11,15 @@ only as a last snapshot.
 from __future__ import annotations
 
 import logging
+import operator
 import threading
 import time
 import traceback
 
 import numpy as np
 
-from splat_core.metrics import psnr
+from splat_core.metrics import RunningAte, psnr
 from splat_core.run.pose_arrays import GrowingArray
-from splat_core.run.report import ate_cm
 
 from .live_preview import LivePreview
 from .snapshot import (HISTORY_KEYS, LIVE_TILE_WIDTH, KeyframeView, LiveView, MapSnapshot, VersionArrays,
@@ -74,8 +74,9 @@ class SlamWorker(threading.Thread):
         self._map_version = 0
         self._map_arrays = freeze_gaussians(empty_gaussians())
         self._map_copied_at = -1e9
-        self._keyframe_views: dict[int, tuple] = {}     # frame -> (w2c it was made at, KeyframeView)
-        self._keyframes_seen: tuple | None = None       # (frames, w2cs, views) of the last _keyframes()
+        self._keyframe_views: dict[int, tuple] = {}     # frame -> (the w2c array it was made from, KeyframeView)
+        self._keyframes_seen: tuple | None = None       # (keyframes, their w2c arrays, views) of the last _keyframes()
+        self._ate = RunningAte()                        # the history's ATE, frame by frame
         self._history = {k: GrowingArray(()) for k in HISTORY_KEYS}   # one entry a frame
         self._timestamps = GrowingArray(())
         self._live: LiveView | None = None
@@ -194,7 +195,8 @@ class SlamWorker(threading.Thread):
         self._timestamps.append(float(r.timestamp))
         seconds = float(pipe.records[-1]["wall_seconds"])
         poses = pipe.estimated_c2w_array(), pipe.reference_c2w_array()   # each pose converted once
-        ate = ate_cm(*poses)
+        ate = None if poses[1] is None else self._ate(*poses)      # the sums of new or moved pairs only
+        ate = None if ate is None else 100.0 * ate
         for key, value in (("frame", r.index), ("tracking_loss", r.tracking_loss), ("ate_cm", ate),
                            ("seconds", seconds), ("psnr", None), ("num_gaussians", r.num_gaussians)):
             self._history[key].append(np.nan if value is None else float(value))
@@ -235,23 +237,24 @@ class SlamWorker(threading.Thread):
 
     # ------------------------------------------------------------------ snapshots
     def _keyframes(self) -> tuple:
-        """A view per keyframe, made again when its pose changed (a loop correction moves keyframes);
-        the same tuple as last time while no keyframe came or moved (one comparison, not one a keyframe)."""
-        kfs = self.pipeline.keyframes()
-        frames = tuple(int(kf.frame_index) for kf in kfs)
-        w2cs = np.array([kf.w2c for kf in kfs], np.float64).reshape(-1, 4, 4)
+        """A view per keyframe, made again when its pose changed (a loop correction gives a keyframe a
+        new w2c array: slam.py apply_correction); the same tuple as last time while no keyframe came
+        or moved, found by identity (the arrays compared are held, so no id is reused meanwhile)."""
+        kfs = tuple(self.pipeline.keyframes())
+        w2cs = tuple(kf.w2c for kf in kfs)
         seen = self._keyframes_seen
-        if seen is not None and seen[0] == frames and np.array_equal(seen[1], w2cs):
+        if seen is not None and len(seen[0]) == len(kfs) and all(map(operator.is_, seen[0], kfs)) \
+                and all(map(operator.is_, seen[1], w2cs)):
             return seen[2]
         views = []
         for kf, w2c in zip(kfs, w2cs):
             w2c_seen, view = self._keyframe_views.get(kf.frame_index, (None, None))
-            if view is None or not np.array_equal(w2c, w2c_seen):
+            if view is None or w2c is not w2c_seen:
                 thumbnail = view.thumbnail if view is not None else frozen(make_thumbnail(kf.color))
                 view = KeyframeView(int(kf.frame_index), frozen(np.linalg.inv(w2c)), thumbnail, kf)
                 self._keyframe_views[kf.frame_index] = (w2c, view)
             views.append(view)
-        self._keyframes_seen = (frames, w2cs, tuple(views))
+        self._keyframes_seen = (kfs, w2cs, tuple(views))
         return self._keyframes_seen[2]
 
     def _loops(self) -> tuple | None:
@@ -263,7 +266,8 @@ class SlamWorker(threading.Thread):
         return tuple(getattr(version, "loops", ()) or ())
 
     def _publish(self, force_map: bool = False, message: str = "", poses: tuple | None = None) -> None:
-        """`poses`: the pipeline's (estimated_c2w_array, reference_c2w_array) when the caller has them."""
+        """`poses`: the pipeline's (estimated_c2w_array, reference_c2w_array) when the caller has them
+        (new arrays each: the snapshot keeps them, read-only, without another copy)."""
         pipe = self.pipeline
         now = time.monotonic()
         if force_map or now - self._map_copied_at >= self.map_interval_s:
@@ -285,8 +289,8 @@ class SlamWorker(threading.Thread):
                 total_frames=int(pipe.total or len(pipe.records)), map_version=self._map_version,
                 gaussians=self._map_arrays,
                 keyframes=self._keyframes(), intrinsics=pipe.intrinsics, near_plane=float(pipe.config.near_plane),
-                timestamps=frozen(self._timestamps.view()), estimated_c2w=frozen(est),
-                reference_c2w=frozen(reference), history=history, live=self._live,
+                timestamps=frozen(self._timestamps.view()), estimated_c2w=frozen(est, copy=False),
+                reference_c2w=frozen(reference, copy=False), history=history, live=self._live,
                 seconds_per_frame=float(np.nanmean(secs[-10:])) if len(secs) else None,
                 ate_cm=float(ate[-1]) if len(ate) and np.isfinite(ate[-1]) else None,
                 message=message, out_dir=self.out_dir,

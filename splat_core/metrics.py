@@ -103,6 +103,88 @@ def ate_rmse(est_c2w, ref_c2w) -> float:
     return float(np.sqrt(np.mean(err ** 2))) if err.size else float("nan")
 
 
+class RunningAte:
+    """`ate_rmse` of a trajectory that grows at its end, for a display after every frame (the viewer's
+    worker): the same number to rounding, at a cost that does not grow with the run's length in
+    Python (numpy compares the positions with the last call's, bit for bit; only pairs that are new or
+    changed are summed).
+
+        ate = RunningAte()
+        cm = 100 * ate(est_c2w, ref_c2w)     # (n, 4, 4) arrays, NaN rows where a frame has no reference
+
+    The rigid alignment's residual needs only the pairs' sums: with a = p - mean(p), b = q - mean(q)
+    and H = sum a b^T = U S V^T, align_rigid's rotation R = V D U^T leaves
+        sum |R a_i - b_i|^2 = sum |a|^2 + sum |b|^2 - 2 (s1 + s2 + d s3),   d = det(V U^T),
+    so the sums of p, q, |p|^2, |q|^2 and p q^T are kept (about the first pair's positions, so that
+    a trajectory far from its world's origin loses no digits). A pose the engine moved (a loop
+    correction, a lost frame's fill) is found by comparing the arrays with the last call's; its old
+    pair leaves the sums and its new one enters; many at once (or a shorter array: a resume)
+    rebuild them. Returns NaN as `ate_rmse` does (an estimated pose that is not finite), None with
+    fewer than two pairs."""
+
+    REBUILD = 32        # more changed pairs than this: sum them all again
+
+    def __init__(self):
+        self._p = np.zeros((0, 3))
+        self._q = np.zeros((0, 3))
+        self._rebuild(self._p, self._q)
+
+    def _rebuild(self, p, q) -> None:
+        self._n, self._bad = 0, 0
+        self._add(p, q, 1.0)
+
+    def _add(self, p, q, sign: float) -> None:
+        """Pairs (p_i, q_i) into the sums (sign +1) or out of them (-1); rows without a reference are not pairs."""
+        ok = np.isfinite(q).all(axis=1)
+        p, q = p[ok], q[ok]
+        bad = ~np.isfinite(p).all(axis=1)
+        p, q = p[~bad], q[~bad]
+        if self._n == self._bad == 0:       # no pair in the sums: start them about this first pair
+            self._origin = (p[0], q[0]) if len(p) else (np.zeros(3), np.zeros(3))
+            self._sp, self._sq, self._spq = np.zeros(3), np.zeros(3), np.zeros((3, 3))
+            self._spp = self._sqq = 0.0
+        self._n += int(sign) * (len(p) + int(bad.sum()))
+        self._bad += int(sign) * int(bad.sum())
+        p, q = p - self._origin[0], q - self._origin[1]
+        self._sp += sign * p.sum(axis=0)
+        self._sq += sign * q.sum(axis=0)
+        self._spp += sign * float(np.einsum("ij,ij->", p, p))
+        self._sqq += sign * float(np.einsum("ij,ij->", q, q))
+        self._spq += sign * (p.T @ q)
+
+    def __call__(self, est_c2w, ref_c2w) -> float | None:
+        n = min(len(est_c2w), len(ref_c2w))
+        p = np.array(np.asarray(est_c2w, np.float64)[:n, :3, 3])
+        q = np.array(np.asarray(ref_c2w, np.float64)[:n, :3, 3])
+        m = len(self._p)
+        if n < m:
+            self._rebuild(p, q)
+        else:
+            # bit for bit (NaN rows equal themselves), element by element: cheaper than per-row tests
+            moved = (self._p.view(np.int64) != p[:m].view(np.int64)) | (self._q.view(np.int64) != q[:m].view(np.int64))
+            changed = np.unique(np.flatnonzero(moved) // 3)
+            if len(changed) > self.REBUILD:
+                self._rebuild(p, q)
+            else:
+                for p_rows, q_rows, sign in ((self._p[changed], self._q[changed], -1.0),
+                                             (p[changed], q[changed], 1.0), (p[m:], q[m:], 1.0)):
+                    if len(p_rows):
+                        self._add(p_rows, q_rows, sign)
+        self._p, self._q = p, q
+        if self._n < 2:
+            return None
+        if self._bad:
+            return float("nan")
+        k = self._n
+        a2 = self._spp - self._sp @ self._sp / k            # sum |p - mean p|^2
+        b2 = self._sqq - self._sq @ self._sq / k
+        H = self._spq - np.outer(self._sp, self._sq) / k
+        U, S, Vt = np.linalg.svd(H)
+        d = np.sign(np.linalg.det(Vt.T @ U.T)) or 1.0
+        residual = a2 + b2 - 2.0 * (S[0] + S[1] + d * S[2])
+        return float(np.sqrt(max(residual, 0.0) / k))
+
+
 def ate_rmse_segments(est_c2w, ref_c2w, breaks) -> float:
     """ATE RMSE (metres) with the trajectory cut after each frame index in `breaks` and every
     piece aligned onto the reference on its own (rigid, no scale), the RMSE taken over all

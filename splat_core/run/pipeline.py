@@ -100,6 +100,7 @@ class Pipeline:
         slam = SplaTAM(config, self.intrinsics, device=self.device, total_frames=self.total, stride=stride)
         self.engine = make_engine(engine, slam, config, live_source=self.streaming)
         self.records: list[dict] = []          # per-frame numbers kept for metrics.json and resume
+        self._lost_scan: tuple = (self.records, 0, [])     # `lost`: (records read, how many, lost found)
         self._feed_marks: list[tuple[int, int]] = []    # per frame: the feed's cursor and skipped count after it
         self.references: list[np.ndarray | None] = []
         self._inverses, self._reference_world_poses = InverseTrajectory(), ReferenceWorld()   # each pose once
@@ -197,8 +198,16 @@ class Pipeline:
 
     @property
     def lost(self) -> list[dict]:
-        return [dict(index=r["index"], source_index=r["source_index"], reason=r["lost"])
-                for r in self.records if r.get("lost")]
+        """The lost frames' (index, source_index, reason); each record is read once (the viewer's
+        worker asks after every frame): only those appended since the last call, unless the records
+        are a new list (a resume)."""
+        records, scanned, found = self._lost_scan
+        if records is not self.records or scanned > len(self.records):
+            records, scanned, found = self.records, 0, []
+        found.extend(dict(index=r["index"], source_index=r["source_index"], reason=r["lost"])
+                     for r in records[scanned:] if r.get("lost"))
+        self._lost_scan = (records, len(records), found)
+        return list(found)
 
     def _report_lost(self, result: FrameResult) -> None:
         """One warning when tracking is lost and one when it is back (not one per lost frame)."""

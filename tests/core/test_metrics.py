@@ -6,7 +6,7 @@ import torch
 
 from splat_core.camera import invert_pose, pose_matrix, quat_to_rotmat_np
 from splat_core.metrics import (
-    align_rigid, ate_errors, ate_mean_legacy, ate_rmse, depth_l1, psnr, relative_pose_errors,
+    RunningAte, align_rigid, ate_errors, ate_mean_legacy, ate_rmse, depth_l1, psnr, relative_pose_errors,
     ssim_metric,
 )
 
@@ -116,6 +116,42 @@ def test_ate_skips_frames_without_reference():
         ate_rmse(est[:3], ref[:4])
     # Torch input.
     assert ate_rmse(torch.tensor(est), torch.tensor(ref)) == pytest.approx(D * np.sqrt(4 / 5), abs=1e-12)
+
+
+def _walk(rng, n, offset):
+    """A random walk of camera centres far from the world's origin (so sums about it would lose digits)."""
+    return _poses(np.cumsum(rng.normal(0, 0.03, (n, 3)), axis=0) + offset)
+
+
+def test_running_ate_equals_ate_rmse_as_the_trajectory_grows_and_moves():
+    rng = np.random.default_rng(4)
+    ref = _walk(rng, 400, [40.0, -25.0, 3.0])
+    est = ref.copy()
+    est[:, :3, 3] = (est[:, :3, 3] + rng.normal(0, 0.01, (400, 3))) @ _rot([1, 2, 3], 40).T + [5.0, 1.0, 0.0]
+    ref[::9] = np.nan                      # frames without a reference pose
+    running = RunningAte()
+    assert running(est[:2], ref[:2]) is None and running(est[:0], ref[:0]) is None    # fewer than two pairs
+    for n in range(3, 400, 7):
+        assert running(est[:n], ref[:n]) == pytest.approx(ate_rmse(est[:n], ref[:n]), rel=1e-7)
+    # poses an engine moved afterwards: a few (their pairs replaced in the sums), then many (rebuilt)
+    for moved in (slice(100, 105), slice(0, 300)):
+        est = est.copy()
+        est[moved, :3, 3] += [0.02, -0.01, 0.03]
+        assert running(est, ref) == pytest.approx(ate_rmse(est, ref), rel=1e-7)
+    # a shorter trajectory (a resume) and an estimate that is not finite, as ate_rmse says
+    assert running(est[:50], ref[:50]) == pytest.approx(ate_rmse(est[:50], ref[:50]), rel=1e-7)
+    est[60, 0, 3] = np.nan
+    assert np.isnan(running(est[:80], ref[:80])) and np.isnan(ate_rmse(est[:80], ref[:80]))
+    est[60, 0, 3] = 0.0
+    assert running(est[:80], ref[:80]) == pytest.approx(ate_rmse(est[:80], ref[:80]), rel=1e-7)
+
+
+def test_running_ate_of_an_exact_trajectory_is_zero_to_rounding():
+    ref = _walk(np.random.default_rng(5), 300, [1000.0, 0.0, 0.0])
+    est = ref.copy()
+    est[:, :3, 3] = est[:, :3, 3] @ _rot([0, 0, 1], 70).T - [300.0, 20.0, 0.0]
+    running = RunningAte()
+    assert running(est, ref) < 1e-6            # metres: no digits lost to the kilometre offsets
 
 
 def test_relative_pose_errors():

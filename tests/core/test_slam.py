@@ -40,6 +40,30 @@ def test_slam_on_cuda_tracks_like_the_cpu():
     assert pipe.ate_cm() < 1.0
 
 
+def test_lost_frames_follow_appended_records_and_a_resume():
+    """Pipeline.lost reads each record once (the viewer asks after every frame): the same list as
+    reading them all, after appends and after a resume's new list."""
+    from splat_core.run import Pipeline
+    pipe = Pipeline(SyntheticSource(n_frames=4, width=64, height=48, seed=0), load_config("cpu"))
+
+    def record(k, lost=None):
+        return dict(index=k, source_index=2 * k, lost=lost)
+
+    def expected():
+        return [dict(index=r["index"], source_index=r["source_index"], reason=r["lost"]) for r in pipe.records if r["lost"]]
+
+    assert pipe.lost == []
+    pipe.records.extend([record(0), record(1, "coverage"), record(2)])
+    assert pipe.lost == expected() and len(expected()) == 1
+    pipe.records.extend([record(3, "loss"), record(4)])
+    assert pipe.lost == expected() and len(expected()) == 2
+    lost = pipe.lost
+    lost.clear()                                             # a caller's copy, not the pipeline's list
+    assert pipe.lost == expected()
+    pipe.records = [record(0, "coverage")]                   # a resume's records
+    assert pipe.lost == expected() == [dict(index=0, source_index=0, reason="coverage")]
+
+
 def test_reference_poses_in_the_slam_world_follow_appends_and_a_resume():
     """Pipeline.reference_c2w (and _array) converts only the frames added since it was last asked (a
     viewer asks after every frame): the same poses as converting them all, also after the list is
