@@ -46,7 +46,7 @@ class AlignConfig:
                              "(docs/benchmarks.md, Three lenses)")
     tolerance: float = setting(1e-7, "a pyramid level's Gauss-Newton iterations stop when a step changes no entry "
                                "of the 4 x 4 pose by this much (radians, metres)", trades="larger: fewer iterations "
-                               "per frame, a pose that stops short of the solve's minimum (live: 1e-4)")
+                               "per frame, a pose that stops short of the solve's minimum (cpu, live: 1e-4)")
     reuse_render: int = setting(0, "frames after the one it was made for that the alignment's dense render of a map "
                                 "version serves again (the map's culled Gaussians too), aligned from the render's "
                                 "pose; a new map version renders anew; 0: a render per frame", unit="frames",
