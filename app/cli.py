@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-# Torch and Numba each bring an OpenMP runtime: how their idle threads wait, before torch loads.
+# Torch's OpenMP runtime (Numba's kernels run on it too): how its idle threads wait, set before torch loads.
 from splat_core.openmp_env import openmp_defaults
 
 openmp_defaults()

@@ -138,13 +138,13 @@ class RunningAte:
         ok = np.isfinite(q).all(axis=1)
         p, q = p[ok], q[ok]
         bad = ~np.isfinite(p).all(axis=1)
-        p, q = p[~bad], q[~bad]
+        p, q, n_bad = p[~bad], q[~bad], int(bad.sum())
         if self._n == self._bad == 0:       # no pair in the sums: start them about this first pair
             self._origin = (p[0], q[0]) if len(p) else (np.zeros(3), np.zeros(3))
             self._sp, self._sq, self._spq = np.zeros(3), np.zeros(3), np.zeros((3, 3))
             self._spp = self._sqq = 0.0
-        self._n += int(sign) * (len(p) + int(bad.sum()))
-        self._bad += int(sign) * int(bad.sum())
+        self._n += int(sign) * (len(p) + n_bad)
+        self._bad += int(sign) * n_bad
         p, q = p - self._origin[0], q - self._origin[1]
         self._sp += sign * p.sum(axis=0)
         self._sq += sign * q.sum(axis=0)

@@ -1,7 +1,8 @@
 """How the OpenMP runtimes' idle threads wait: set in the environment before torch is imported.
 
-Torch and Numba (its "omp" threading layer) each load a libgomp, which reads OMP_WAIT_POLICY and
-GOMP_SPINCOUNT once, when it loads. Between two parallel regions (a mapping iteration runs tens of
+Torch loads its bundled libgomp, and Numba's "omp" threading layer runs its parallel regions on that
+same runtime (gdb backtraces of a live run: docs/history/2026-12-07-worker-and-tolerance.md); it reads
+OMP_WAIT_POLICY and GOMP_SPINCOUNT once, when it loads. Between two parallel regions (a mapping iteration runs tens of
 them: the rasterizer's kernels, the loss, torch's element-wise work) a worker thread either spins
 or sleeps:
 
@@ -14,9 +15,9 @@ or sleeps:
   PASSIVE alone, and the sequential engine's frames 4-10 % less, outputs the same bit for bit
   (docs/benchmarks.md, "OpenMP workers").
 
-Where one process runs more OpenMP threads than there are cores (the live engine: the tracker's
-and the mapper's teams), libgomp cuts any spin to ~100 loops by itself, so the live engine, and the
-viewer that runs it, wait as with PASSIVE alone. A user's own setting of either variable wins:
+Where the runtime manages more threads than there are cores (the live engine: the tracker's and
+the mapper's teams, each alive once its thread has run a two-thread region), libgomp cuts the spin
+short by itself, so the live engine, and the viewer that runs it, wait as with PASSIVE alone. A user's own setting of either variable wins:
 then neither is changed.
 """
 
