@@ -74,8 +74,9 @@ def test_first_frame_maps_every_tile(monkeypatch):
 
 
 def test_first_frame_budget_of_the_live_preset(monkeypatch):
-    """mapping.first_frame_tile_fraction: the `live` preset's frame 0, which its tracker waits for,
-    draws its configured share of the tiles (cpu: every tile, as above); later frames are unchanged."""
+    """mapping.first_frame_tile_fraction and first_frame_iterations: the `live` preset's frame 0,
+    which its tracker waits for, runs its own (fewer) iterations on its configured share of the
+    tiles (cpu: every tile, as above); later frames are unchanged."""
     import splat_core.slam as slam_module
     seen = []
     monkeypatch.setattr(slam_module, "optimise_map",
@@ -83,6 +84,7 @@ def test_first_frame_budget_of_the_live_preset(monkeypatch):
                             (config.tile_fraction, iterations)) or {"pruned": 0})
     cfg = load_config("live")
     assert cfg.mapping.first_frame_tile_fraction < 1
+    assert cfg.mapping.first_frame_iterations < load_config("cpu").mapping.first_frame_iterations
     slam = slam_module.SplaTAM(cfg, small_source(n=2).intrinsics)
     slam.optimise([], first=True)
     slam.optimise([], first=False)
