@@ -6,6 +6,10 @@ each), and counts the runs that met the target: no frame lost and ATE <= --facto
 
     python benchmarks/realtime_repeats.py --sequence 7scenes_redkitchen_600 --presets live,live+X.yaml --rounds 6
     python benchmarks/realtime_repeats.py --sequence 7scenes_redkitchen_600 --presets live --rounds 6 --busy 1
+    python benchmarks/realtime_repeats.py --sequence 7scenes_redkitchen_600 --presets live@../prev,live --rounds 3
+
+PRESET@CHECKOUT runs another checkout's code (a `git worktree` of an earlier commit) with its own
+presets, as `slam.py` does: before/after figures from one invocation.
 
 --ate-line CM: the all-frames live run's ATE the target is relative to (default: one all-frames run
 of the first preset with the live engine, made first). --busy K adds K processes that spin on a core
@@ -26,7 +30,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import DATA, machine_line  # noqa: E402
+from common import DATA, ROOT, machine_line  # noqa: E402
 from live_rate import fmt, run  # noqa: E402
 
 
@@ -42,10 +46,17 @@ def coverage(out: Path) -> tuple[float | None, int, int | None]:
     return (min(cov) if cov else None), sum(c < 0.25 for c in cov), metrics.get("live", {}).get("hurried_steps")
 
 
+def _split(entry: str) -> tuple[str, Path]:
+    """PRESET[@CHECKOUT] -> (preset, the checkout whose code runs it)."""
+    preset, _, checkout = entry.partition("@")
+    return preset, (Path(checkout).resolve() if checkout else ROOT)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--sequence", default="7scenes_redkitchen_600")
-    p.add_argument("--presets", default="live", help="comma-separated presets or '+'-compositions")
+    p.add_argument("--presets", default="live", help="comma-separated presets or '+'-compositions, each "
+                   "optionally @CHECKOUT (another checkout's code)")
     p.add_argument("--rounds", type=int, default=6)
     p.add_argument("--factor", type=float, default=1.5)
     p.add_argument("--ate-line", type=float, default=None)
@@ -62,14 +73,16 @@ def main() -> None:
     try:
         line = args.ate_line
         if line is None:
-            line = run(path, presets[0], "live", None, work / "all_frames", None).get("ate")
+            name, root = _split(presets[0])
+            line = run(path, name, "live", None, work / "all_frames", None, root=root).get("ate")
             if line is None:
                 sys.exit(f"realtime_repeats: the all-frames run of {presets[0]} on {path} gave no ATE (see {work})")
         rows = []
         for r in range(1, args.rounds + 1):
             for preset in presets:
-                out = work / f"{r}_{preset.replace('/', '_')}"
-                row = dict(round=r, preset=preset, **run(path, preset, "live", "realtime", out, None))
+                out = work / f"{r}_{preset.replace('/', '_').replace('@', '_')}"
+                name, root = _split(preset)
+                row = dict(round=r, preset=preset, **run(path, name, "live", "realtime", out, None, root=root))
                 if "error" not in row:
                     row["coverage_min"], row["frames_under_25"], row["hurried"] = coverage(out)
                     row["met"] = row["lost"] == 0 and row["ate"] is not None and row["ate"] <= args.factor * line
