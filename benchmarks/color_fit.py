@@ -64,8 +64,8 @@ def fit_samples(run, source, keep_depth: bool = False):
 
 def restore_before_finish(path, run) -> bool:
     """A run made with the end-of-run passes: its map put back as it was before them (the checkpoint
-    keeps the Gaussians' count and colours; a run from before it did: metrics.json's fit undone).
-    False: a run without them (its map is as it was)."""
+    keeps that map, or, before the refinement, the Gaussians' count and colours; a run from before
+    those: metrics.json's fit undone). False: a run without them (its map is as it was)."""
     import torch
 
     from splat_core.gaussians import PARAM_NAMES, GaussianMap
@@ -73,6 +73,10 @@ def restore_before_finish(path, run) -> bool:
 
     folder = RunFolder(path)
     arrays = folder.load_checkpoint().arrays
+    whole = {k[len("before_finish_"):]: v for k, v in arrays.items() if k.startswith("before_finish_")}
+    if whole:
+        run.map = GaussianMap.from_numpy(whole, dtype=run.map.dtype)
+        return True
     before = arrays.get("fit_colors_before")
     if before is not None:
         size = int(arrays.get("finish_map_size", len(before)))

@@ -153,15 +153,16 @@ class MappingConfig:
                              "to the newest frame's")
     exposure_prior: float = setting(0.01, "weight of identity (gain 1, offset 0) in that fit, per pixel of the "
                                     "view (0: free fit)", unit="fraction")
-    final_color_fit: bool = setting(False, "after the last frame, multiply and offset the map's colours (one gain "
-                                    "and offset per channel, least squares of the map's renders against frames "
-                                    "kept for it midway between the evaluated frames, never an evaluated one; "
-                                    "color_fit.py), so the map keeps the run's average exposure "
-                                    "instead of the last frames'; poses are not touched",
-                                    trades="true: every render is brighter or darker by the same three numbers; "
-                                    "on a capture without exposure changes the fit is near identity; up to 64 "
-                                    "frames at half resolution kept (57.6 kB each at 320x240) and rendered once "
-                                    "at the end")
+    final_refine: float = setting(
+        0.0, "after the last frame (no pose moves), before the other final passes: passes over every keyframe "
+        "optimising the whole map, kept only if held-out frames bear it out (final_refine.py); 0 = off",
+        unit="passes", trades="more: a map fitted to the whole run, not each part to the frames that saw it last "
+        "(7-Scenes +2 dB, SUN3D +0.3-0.7 at one pass), for one render and backward per keyframe and pass")
+    final_color_fit: bool = setting(False, "after the last frame, one gain and offset per channel on the map's "
+                                    "colours (least squares against frames kept midway between evaluated ones; "
+                                    "color_fit.py): the run's average exposure, not the last frames'",
+                                    trades="true: renders brighter or darker by the same three numbers; up to "
+                                    "64 frames at half resolution kept (57.6 kB each at 320x240)")
     final_color_fit_min_improvement: float = setting(
         0.08, "that fit is applied only if, fitted on half of its frames, it lowers the squared colour error on "
         "the other half (and the other way round) by at least this fraction; else the map is left as it is "
@@ -170,8 +171,7 @@ class MappingConfig:
         "frames up to 0.16 dB (SUN3D); larger: only large exposure corrections (7-Scenes) kept")
     final_color_fit_prior: float = setting(
         0.03, "weight of identity (gain 1, offset 0) in that fit, per pixel of its frames (0: least squares)",
-        unit="fraction", trades="larger: smaller corrections (the fit's frames are not the map's training "
-        "views and ask for more than the evaluated frames need)")
+        unit="fraction", trades="larger: smaller corrections (its frames ask for more than evaluated ones need)")
     final_hole_fill: float = setting(
         0.0, "after the last frame (tracking finished: no pose moves), before that colour fit: Gaussians where "
         "the frames kept for the fits have no valid depth and the finished map is empty, at the farthest valid "

@@ -81,11 +81,11 @@ class SplaTAM(SlamState):
         self._version: MapVersion | None = None
         self._version_lock = threading.Lock()
         self._versions_made = 0
-        # mapping.final_color_fit / final_hole_fill: frames kept for the end-of-run passes (color_fit.py,
-        # final_holes.py; finish()), with their depth for the hole fill
-        holes = config.mapping.final_hole_fill > 0
+        # mapping.final_refine / final_color_fit / final_hole_fill: frames kept for the end-of-run passes
+        # (final_refine.py, color_fit.py, final_holes.py; finish()), with their depth for the hole fill
+        mapping, holes = config.mapping, config.mapping.final_hole_fill > 0
         self.fit_samples = (FitSamples(intrinsics, config.eval_every, keep_depth=holes)
-                            if config.mapping.final_color_fit or holes else None)
+                            if mapping.final_color_fit or holes or mapping.final_refine > 0 else None)
 
     def _tensor(self, a: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(np.ascontiguousarray(a), dtype=self.dtype, device=self.device)

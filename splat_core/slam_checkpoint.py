@@ -3,15 +3,16 @@ that saves, loads and finishes what its steps made. A mixin: SplaTAM stays the o
 
     arrays = slam.state_arrays()          everything a resume needs (map, keyframes, poses, rng, ...)
     slam.load_state_arrays(arrays, file)  restore it (the keyframe images are records of `file`)
-    sections = slam.finish()              the end-of-run passes on the map (mapping.final_hole_fill,
-                                          mapping.final_color_fit): metrics.json's sections
+    sections = slam.finish()              the end-of-run passes on the map (mapping.final_refine,
+                                          final_hole_fill, final_color_fit): metrics.json's sections
 
 After `finish` the map is the finished one (published as a new version, and in the checkpoint's
-map, which browsing, refinement and renders read); the checkpoint also keeps how many Gaussians
-the map had before it (`finish_map_size`: the hole fill appends after them) and their colours
-(`fit_colors_before`), and the frames kept for the passes (`fit_frames`, `fit_colors`,
-`fit_depths`), and loading it restores those: a resumed run is in the state before its end, goes
-on with any frames left, and finishes again when it ends (the same passes: tests/core/).
+map, which browsing, refinement and renders read); the checkpoint also keeps the map from before
+it (`before_finish_*`, every parameter: the refinement moves them all) and the frames kept for the
+passes (`fit_frames`, `fit_colors`, `fit_depths`), and loading it restores those: a resumed run is
+in the state before its end, goes on with any frames left, and finishes again when it ends (the
+same passes: tests/core/). Checkpoints written before the refinement kept only the colours from
+before (`fit_colors_before`) and the size (`finish_map_size`: the hole fill appends after it).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import torch
 
 from .color_fit import fit_map_colors
 from .final_holes import fill_final_holes
+from .final_refine import refine_final_map
 from .gaussians import GaussianMap
 from .loop.records import LoopRecord
 
@@ -32,18 +34,20 @@ class SlamState:
     """SplaTAM's checkpoint and finish (its attributes: slam.py)."""
 
     finished: dict | None = None                  # finish()'s sections, once it ran
-    _before_finish: tuple[int, torch.Tensor] | None = None     # the map's size and colours before finish()
+    _before_finish: dict | None = None            # the map before finish(), as numpy arrays
 
     def finish(self) -> dict:
         """The end of the run, after its last frame was mapped, over the frames kept for it (none of
         them evaluated: color_fit.FitSamples) at their final poses; no pose moves:
+          - mapping.final_refine: the whole map optimised over every keyframe, kept only where
+            those frames bear it out (final_refine.py);
           - mapping.final_hole_fill: Gaussians where those frames have no depth and the map is empty
             (with final_hole_fill_iterations, then only they optimised: final_holes.py);
           - mapping.final_color_fit: the map's colours given the gain and offset per channel that
             best fit its renders to those frames (color_fit.py);
-        and the finished map published. Returns metrics.json's sections, `final_hole_fill` and
-        `final_color_fit` (each where it ran; empty: both off, or no frame kept or no Gaussian); a
-        second call returns the first's."""
+        and the finished map published. Returns metrics.json's sections, `final_refine`,
+        `final_hole_fill` and `final_color_fit` (each where it ran; empty: all off, or no frame kept
+        or no Gaussian); a second call returns the first's."""
         if self.finished is not None:
             return self.finished
         if self.fit_samples is None or not len(self.map):
@@ -52,8 +56,12 @@ class SlamState:
         if not views:
             return {}
         mapping, intrinsics = self.config.mapping, self.fit_samples.intrinsics
-        self._before_finish = (len(self.map), self.map.params["colors"].detach().clone())
+        self._before_finish = self.map.to_numpy()
         sections = {}
+        keyframes = [self.keyframe_view(kf) for kf in self.keyframes]
+        if mapping.final_refine > 0 and keyframes:
+            sections["final_refine"] = refine_final_map(self.map, keyframes, self.intrinsics, views, intrinsics,
+                                                        self.renderer, self.config)
         if mapping.final_hole_fill > 0:
             sections["final_hole_fill"] = fill_final_holes(self.map, views, intrinsics, self.renderer, self.config)
         if mapping.final_color_fit:
@@ -74,8 +82,7 @@ class SlamState:
         it mapped: `w2cs` up to that frame and the tracking state saved right after it was tracked."""
         arrays = {f"map_{k}": v for k, v in self.map.to_numpy().items()}
         if self._before_finish is not None:
-            arrays["finish_map_size"] = np.array(self._before_finish[0], np.int64)
-            arrays["fit_colors_before"] = self._before_finish[1].cpu().numpy()
+            arrays.update({f"before_finish_{k}": v for k, v in self._before_finish.items()})
         arrays.update(self.keyframes.to_arrays())
         arrays["w2cs"] = np.array(self.w2cs if w2cs is None else w2cs).reshape(-1, 4, 4)
         if self.fit_samples is not None:
@@ -96,7 +103,10 @@ class SlamState:
         """Restore a checkpoint; the keyframe images are the first records of `keyframe_file`. A
         finished run's map is restored as it was before finish() (its Gaussians and colours before)."""
         gaussians = {k[4:]: v for k, v in arrays.items() if k.startswith("map_")}
-        if "fit_colors_before" in arrays:
+        before = {k[len("before_finish_"):]: v for k, v in arrays.items() if k.startswith("before_finish_")}
+        if before:
+            gaussians = before
+        elif "fit_colors_before" in arrays:
             size = int(arrays.get("finish_map_size", len(arrays["fit_colors_before"])))
             gaussians = {k: np.asarray(v)[:size] for k, v in gaussians.items()}
             gaussians["colors"] = arrays["fit_colors_before"]

@@ -24,16 +24,11 @@ import torch
 from ..camera import Intrinsics
 from ..config import MappingConfig
 from ..gaussians import PARAM_NAMES, GaussianMap
+from ..final_refine import REFINE_LRS, keyframe_order
 from ..mapping import View, mapping_loss
 from ..render import Renderer
-from ..slam import MapVersion, snapshot_version
+from ..slam_state import MapVersion, snapshot_version
 from .density import DensitySettings, GradientStats, densify_and_prune
-
-
-# Higher than SLAM's mapping rates: a refine has hundreds of steps, not 3DGS's 30k, to move colours
-# and sizes (100 iterations on SUN3D fragment 1 at 640x480: +1.6 dB with these and density control,
-# +0.9 dB with the mapping rates and none; docs/refine.md).
-REFINE_LRS = dict(means=2e-4, colors=1e-2, log_scales=5e-3)
 
 
 @dataclass
@@ -78,9 +73,7 @@ class Refiner:
         self.density_log: list[dict] = []
 
     def view_at(self, iteration: int) -> View:
-        passes, position = divmod(iteration, len(self.views))
-        order = np.random.default_rng([self.settings.seed, passes]).permutation(len(self.views))
-        return self.views[int(order[position])]
+        return self.views[keyframe_order(len(self.views), iteration, self.settings.seed)]
 
     def step(self) -> float:
         view = self.view_at(self.iteration)
