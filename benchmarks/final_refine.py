@@ -39,13 +39,14 @@ def measure(path, passes: list[float]) -> dict:
     before, _ = run_psnr(run, source, renderer)
     samples = fit_samples(run, source)
     held_out = samples.views(run.w2cs, lambda k: run.records[k].get("lost"))
-    keyframes = [run.view(kf.color, kf.depth, run.w2cs[kf.frame_index]) for kf in run.keyframes]
+    view_of = lambda kf: run.view(kf.color, kf.depth, run.w2cs[kf.frame_index])  # noqa: E731
     start_map = run.map.to_numpy()
     rows = []
     for p in passes:
         run.map = GaussianMap.from_numpy(start_map, dtype=run.map.dtype)
         config = dataclasses.replace(run.config, mapping=dataclasses.replace(run.config.mapping, final_refine=p))
-        record = refine_final_map(run.map, keyframes, run.intrinsics, held_out, samples.intrinsics, renderer, config)
+        record = refine_final_map(run.map, run.keyframes, view_of, run.intrinsics, held_out, samples.intrinsics,
+                                  renderer, config)
         after, _ = run_psnr(run, source, renderer)
         rows.append(dict(passes=p, psnr_after=after, **record))
     return dict(run=str(path), psnr_before=before, frames=len(run.records), rows=rows)
@@ -64,7 +65,7 @@ def main(argv=None) -> int:
     for r in results:
         print(f"{r['run']} ({r['frames']} frames): PSNR before {r['psnr_before']:.2f} dB")
         for row in r["rows"]:
-            print(f"  {row['passes']:g} passes ({row['steps']} steps over {row['keyframes']} keyframes, "
+            print(f"  {row['passes']:g} pass{'' if row['passes'] == 1 else 'es'} ({row['steps']} steps over {row['keyframes']} keyframes, "
                   f"{row['seconds']:.1f} s): PSNR {row['psnr_after']:.2f} dB; held-out ({row['held_out_frames']} frames) "
                   f"{row['held_out_psnr_before']:.2f} -> {row['held_out_psnr_after']:.2f} dB: "
                   f"{'kept' if row['kept'] else 'put back'}")

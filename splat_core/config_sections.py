@@ -157,7 +157,7 @@ class MappingConfig:
         0.0, "after the last frame (no pose moves), before the other final passes: passes over every keyframe "
         "optimising the whole map, kept only if held-out frames bear it out (final_refine.py); 0 = off",
         unit="passes", trades="more: a map fitted to the whole run, not each part to the frames that saw it last "
-        "(7-Scenes +2 dB, SUN3D +0.3-0.7 at one pass), for one render and backward per keyframe and pass")
+        "(7-Scenes +2 dB, SUN3D +0.2-0.6 at one pass), for one render and backward per keyframe and pass")
     final_color_fit: bool = setting(False, "after the last frame, one gain and offset per channel on the map's "
                                     "colours (least squares against frames kept midway between evaluated ones; "
                                     "color_fit.py): the run's average exposure, not the last frames'",

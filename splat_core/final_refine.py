@@ -11,13 +11,16 @@ the keyframes drawn from (seed, pass), one keyframe per Adam step, the mapping l
 Kept only if frames it did not train on bear it out: the frames kept midway between evaluated ones
 (color_fit.FitSamples: never a keyframe or an evaluated frame) are rendered before and after, and
 the refined map is kept only where their mean squared colour error is lower; else every parameter
-is put back. 7-Scenes 300 and 600 +2.0 / +2.6 dB, SUN3D +0.3 / +0.7 dB at one pass, the held-out
-frames by as much (docs/benchmarks.md, "The end-of-run refinement").
+is put back. One pass: PSNR +1.9 / +2.5 dB on 7-Scenes 300 / 600, +0.2 / +0.6 on the SUN3D
+fragments, +1.1 on the synthetic scene, the held-out frames rising with it (docs/benchmarks.md,
+"The end-of-run refinement"). The keyframes are read one at a time (`view_of`): a long run's
+hundreds of keyframes are not all decoded at once.
 """
 
 from __future__ import annotations
 
 import time
+from typing import Callable
 
 import numpy as np
 import torch
@@ -50,18 +53,20 @@ def held_out_error(gmap: GaussianMap, views, intrinsics: Intrinsics, renderer) -
     return float(np.mean(errors))
 
 
-def refine_final_map(gmap: GaussianMap, keyframe_views: list[View], intrinsics: Intrinsics,
-                     held_out_views, held_out_intrinsics: Intrinsics, renderer, config) -> dict:
-    """The refinement above on `gmap` in place (`config`: the run's Config); metrics.json's record:
-    steps, keyframes, held-out PSNR before and after, kept, seconds."""
+def refine_final_map(gmap: GaussianMap, keyframes: list, view_of: Callable[..., View],
+                     intrinsics: Intrinsics, held_out_views, held_out_intrinsics: Intrinsics, renderer,
+                     config) -> dict:
+    """The refinement above on `gmap` in place (`view_of(keyframe)`: its View at its final pose;
+    `config`: the run's Config); metrics.json's record: steps, keyframes, held-out PSNR before and
+    after, kept, held_out_frames, seconds."""
     start = time.perf_counter()
     mapping = config.mapping
-    steps = int(round(mapping.final_refine * len(keyframe_views)))
+    steps = int(round(mapping.final_refine * len(keyframes)))
     before = held_out_error(gmap, held_out_views, held_out_intrinsics, renderer)
     saved = {name: p.detach().clone() for name, p in gmap.params.items()}
     optimizer = gmap.adam({**mapping.lrs, **REFINE_LRS})
     for step in range(steps):
-        view = keyframe_views[keyframe_order(len(keyframe_views), step, config.seed)]
+        view = view_of(keyframes[keyframe_order(len(keyframes), step, config.seed)])
         loss = mapping_loss(renderer.render(gmap.tensors(), intrinsics, view.w2c), view, mapping)
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -73,6 +78,6 @@ def refine_final_map(gmap: GaussianMap, keyframe_views: list[View], intrinsics: 
             for name, p in gmap.params.items():
                 p.copy_(saved[name])
     psnr = lambda mse: float(-10.0 * np.log10(max(mse, 1e-12)))  # noqa: E731
-    return dict(steps=steps, keyframes=len(keyframe_views), held_out_psnr_before=psnr(before),
+    return dict(steps=steps, keyframes=len(keyframes), held_out_psnr_before=psnr(before),
                 held_out_psnr_after=psnr(after), kept=bool(kept), held_out_frames=len(held_out_views),
                 seconds=time.perf_counter() - start)

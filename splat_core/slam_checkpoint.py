@@ -58,10 +58,10 @@ class SlamState:
         mapping, intrinsics = self.config.mapping, self.fit_samples.intrinsics
         self._before_finish = self.map.to_numpy()
         sections = {}
-        keyframes = [self.keyframe_view(kf) for kf in self.keyframes]
+        keyframes = list(self.keyframes)
         if mapping.final_refine > 0 and keyframes:
-            sections["final_refine"] = refine_final_map(self.map, keyframes, self.intrinsics, views, intrinsics,
-                                                        self.renderer, self.config)
+            sections["final_refine"] = refine_final_map(self.map, keyframes, self.keyframe_view, self.intrinsics,
+                                                        views, intrinsics, self.renderer, self.config)
         if mapping.final_hole_fill > 0:
             sections["final_hole_fill"] = fill_final_holes(self.map, views, intrinsics, self.renderer, self.config)
         if mapping.final_color_fit:

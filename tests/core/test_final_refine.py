@@ -54,7 +54,7 @@ def _scene():
 def test_a_refinement_held_out_frames_bear_out_is_kept_and_lowers_their_error():
     gmap, renderer, keyframes, held_out = _scene()
     before = held_out_error(gmap, held_out, INTR, renderer)
-    record = refine_final_map(gmap, keyframes, INTR, held_out, INTR, renderer, _config())
+    record = refine_final_map(gmap, keyframes, lambda view: view, INTR, held_out, INTR, renderer, _config())
     after = held_out_error(gmap, held_out, INTR, renderer)
     assert record["kept"] and record["steps"] == 40 and record["keyframes"] == 2
     assert after < 0.25 * before
@@ -67,7 +67,7 @@ def test_a_refinement_held_out_frames_do_not_bear_out_is_put_back_bit_for_bit():
     _, _, w2c = _observed(gmap, renderer, POSES[2])
     held_out = [SimpleNamespace(color=_observed(gmap, renderer, POSES[2])[0].numpy(), w2c=w2c, frame_index=7)]
     before = gmap.to_numpy()
-    record = refine_final_map(gmap, keyframes, INTR, held_out, INTR, renderer, _config())
+    record = refine_final_map(gmap, keyframes, lambda view: view, INTR, held_out, INTR, renderer, _config())
     assert not record["kept"] and record["held_out_psnr_after"] < record["held_out_psnr_before"]
     for name, array in gmap.to_numpy().items():
         np.testing.assert_array_equal(array, before[name])
