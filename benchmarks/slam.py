@@ -120,7 +120,9 @@ def main() -> None:
             code = Path(checkout).resolve() if checkout else ROOT
             for engine in [engine_of_entry] if engine_of_entry else args.engines.split(","):
                 tag = f"__{code.name}" if checkout else ""
-                out = work / f"{seq}__{Path(preset).stem.replace('+', '_')}__{engine}{tag}"
+                # every part of a '+'-composition named (cpu+A.yaml+S1.yaml is not cpu+S1.yaml's folder)
+                name = "_".join(Path(part).stem for part in preset.split("+"))
+                out = work / f"{seq}__{name}__{engine}{tag}"
                 row = {"sequence": seq, "preset": preset, "engine": engine,
                        **({"code": str(code)} if checkout else {}),
                        **run_one(path, preset, out, args.max_frames, args.device, engine, code),
