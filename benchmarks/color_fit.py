@@ -68,22 +68,14 @@ def restore_before_finish(path, run) -> bool:
     those: metrics.json's fit undone). False: a run without them (its map is as it was)."""
     import torch
 
-    from splat_core.gaussians import PARAM_NAMES, GaussianMap
+    from splat_core.gaussians import GaussianMap
     from splat_core.run.run_folder import RunFolder
+    from splat_core.slam_checkpoint import map_before_finish
 
     folder = RunFolder(path)
-    arrays = folder.load_checkpoint().arrays
-    whole = {k[len("before_finish_"):]: v for k, v in arrays.items() if k.startswith("before_finish_")}
-    if whole:
-        run.map = GaussianMap.from_numpy(whole, dtype=run.map.dtype)
-        return True
-    before = arrays.get("fit_colors_before")
+    before = map_before_finish(folder.load_checkpoint().arrays)
     if before is not None:
-        size = int(arrays.get("finish_map_size", len(before)))
-        m = run.map
-        kept = [m.params[n].detach()[:size] for n in PARAM_NAMES]
-        kept[PARAM_NAMES.index("colors")] = torch.as_tensor(np.asarray(before), dtype=m.dtype)
-        run.map = GaussianMap(*kept, m.birth_frame[:size])
+        run.map = GaussianMap.from_numpy(before, dtype=run.map.dtype)
         return True
     record = (folder.read_metrics() or {}).get("final_color_fit")
     if record is None:

@@ -83,7 +83,8 @@ class SplaTAM(SlamState):
         self._versions_made = 0
         # mapping.final_refine / final_color_fit / final_hole_fill: frames kept for the end-of-run passes
         # (final_refine.py, color_fit.py, final_holes.py; finish()), with their depth for the hole fill
-        mapping, holes = config.mapping, config.mapping.final_hole_fill > 0
+        mapping = config.mapping
+        holes = mapping.final_hole_fill > 0
         self.fit_samples = (FitSamples(intrinsics, config.eval_every, keep_depth=holes)
                             if mapping.final_color_fit or holes or mapping.final_refine > 0 else None)
 

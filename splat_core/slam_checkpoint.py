@@ -30,6 +30,19 @@ from .gaussians import GaussianMap
 from .loop.records import LoopRecord
 
 
+def map_before_finish(arrays: dict) -> dict | None:
+    """A checkpoint's map as it was before finish() (GaussianMap.to_numpy's arrays), or None where
+    finish() had not run: the whole map kept (`before_finish_*`), or, in checkpoints from before the
+    refinement, the finished map's first `finish_map_size` Gaussians with `fit_colors_before`."""
+    before = {k[len("before_finish_"):]: v for k, v in arrays.items() if k.startswith("before_finish_")}
+    if before or "fit_colors_before" not in arrays:
+        return before or None
+    size = int(arrays.get("finish_map_size", len(arrays["fit_colors_before"])))
+    gaussians = {k[4:]: np.asarray(v)[:size] for k, v in arrays.items() if k.startswith("map_")}
+    gaussians["colors"] = arrays["fit_colors_before"]
+    return gaussians
+
+
 class SlamState:
     """SplaTAM's checkpoint and finish (its attributes: slam.py)."""
 
@@ -58,10 +71,9 @@ class SlamState:
         mapping, intrinsics = self.config.mapping, self.fit_samples.intrinsics
         self._before_finish = self.map.to_numpy()
         sections = {}
-        keyframes = list(self.keyframes)
-        if mapping.final_refine > 0 and keyframes:
-            sections["final_refine"] = refine_final_map(self.map, keyframes, self.keyframe_view, self.intrinsics,
-                                                        views, intrinsics, self.renderer, self.config)
+        if mapping.final_refine > 0 and len(self.keyframes):
+            sections["final_refine"] = refine_final_map(self.map, list(self.keyframes), self.keyframe_view,
+                                                        self.intrinsics, views, intrinsics, self.renderer, self.config)
         if mapping.final_hole_fill > 0:
             sections["final_hole_fill"] = fill_final_holes(self.map, views, intrinsics, self.renderer, self.config)
         if mapping.final_color_fit:
@@ -102,14 +114,7 @@ class SlamState:
     def load_state_arrays(self, arrays: dict, keyframe_file=None) -> None:
         """Restore a checkpoint; the keyframe images are the first records of `keyframe_file`. A
         finished run's map is restored as it was before finish() (its Gaussians and colours before)."""
-        gaussians = {k[4:]: v for k, v in arrays.items() if k.startswith("map_")}
-        before = {k[len("before_finish_"):]: v for k, v in arrays.items() if k.startswith("before_finish_")}
-        if before:
-            gaussians = before
-        elif "fit_colors_before" in arrays:
-            size = int(arrays.get("finish_map_size", len(arrays["fit_colors_before"])))
-            gaussians = {k: np.asarray(v)[:size] for k, v in gaussians.items()}
-            gaussians["colors"] = arrays["fit_colors_before"]
+        gaussians = map_before_finish(arrays) or {k[4:]: v for k, v in arrays.items() if k.startswith("map_")}
         self.map = GaussianMap.from_numpy(gaussians, device=self.device, dtype=self.dtype)
         self.finished, self._before_finish = None, None
         self.keyframes.load_arrays(arrays, keyframe_file)
